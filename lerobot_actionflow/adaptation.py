@@ -1,0 +1,52 @@
+"""The adaptation module (paper appendix "Policy Representation").
+
+All poses are expressed in the frame of the current end-effector (EEF) pose, translations are scaled
+(default x10, so 0.1 m becomes 1) and, for the network's input only, squashed with tanh into (-1, 1).
+The flow itself runs in the scaled EEF frame, so the initial noise (standard normal translation) is centred
+on the gripper with a 0.1 m spread.
+
+Because every quantity the network sees is relative to the EEF, transforming the whole scene (EEF
+included) by any g in SE(3) leaves the network's input unchanged; mapping the generated actions back
+with the transformed EEF pose then transforms them by g. This makes every architecture variant exactly
+SE(3)-equivariant, with IPA adding invariance inside the network on top.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from lerobot_actionflow import geometry as g
+
+
+class EEFFrame:
+    """A reference pose (the current EEF) with its translation scale: ``rot [B, 3, 3]``, ``trans [B, 3]``."""
+
+    def __init__(self, rot: Tensor, trans: Tensor, scale: float):
+        self.rot, self.trans, self.scale = rot, trans, scale
+
+    def _expand(self, ndim: int) -> tuple[Tensor, Tensor]:
+        """Reference pose broadcast against poses with ``ndim`` leading dims (batch first)."""
+        shape = (self.rot.shape[0],) + (1,) * (ndim - 1)
+        return self.rot.view(*shape, 3, 3), self.trans.view(*shape, 3)
+
+    def to_local(self, rot: Tensor, trans: Tensor) -> tuple[Tensor, Tensor]:
+        """World poses ``[B, *, 3, 3], [B, *, 3]`` -> EEF-frame poses with translations scaled."""
+        ref_rot, ref_trans = self._expand(trans.dim() - 1)
+        rot_l, trans_l = g.relative(ref_rot, ref_trans, rot, trans)
+        return rot_l, trans_l * self.scale
+
+    def to_world(self, rot: Tensor, trans: Tensor) -> tuple[Tensor, Tensor]:
+        """Inverse of :meth:`to_local`."""
+        ref_rot, ref_trans = self._expand(trans.dim() - 1)
+        return g.compose(ref_rot, ref_trans, rot, trans / self.scale)
+
+    def points_to_local(self, points: Tensor) -> Tensor:
+        """World points ``[B, *, 3]`` -> scaled EEF-frame points."""
+        ref_rot, ref_trans = self._expand(points.dim() - 1)
+        return g.apply_inverse(ref_rot, ref_trans, points) * self.scale
+
+
+def squash(trans: Tensor) -> Tensor:
+    """Bound scaled translations to (-1, 1) for the network, so far-away entities do not dominate."""
+    return torch.tanh(trans)

@@ -1,0 +1,192 @@
+"""ActionFlowConfig: the LeRobot policy configuration registered as ``--policy.type=actionflow``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.configs.types import FeatureType
+from lerobot.optim import AdamWConfig, CosineDecayWithWarmupSchedulerConfig
+
+TOKEN_POSES = "observation.token_poses"
+TOKEN_FEATURES = "observation.token_features"
+POINT_CLOUD = "observation.point_cloud"
+POSE_DIM = 9  # [x, y, z, r00, r10, r20, r01, r11, r21]
+POSE_LAYOUT = "[x, y, z, r00, r10, r20, r01, r11, r21]"
+
+ARCHITECTURES = ("ipa", "multi_token", "single_token")
+ACTION_SPACES = ("se3", "euclidean")
+TIME_SCHEDULES = ("uniform", "exponential")
+
+
+@PreTrainedConfig.register_subclass("actionflow")
+@dataclass
+class ActionFlowConfig(PreTrainedConfig):
+    """ActionFlow: SE(3) flow matching over action pose sequences with an SE(3) Invariant Transformer.
+
+    Inputs (see the token schema in the project README):
+        ``observation.token_poses`` (N, 9) world poses, token 0 = end effector; ``observation.token_features``
+        (N, F); optionally ``observation.images.*`` (3, H, W) posed at the end effector and
+        ``observation.point_cloud`` (P, 3) world points. ``observation.state`` may be present; it is not
+        needed (the EEF pose is token 0).
+    Output:
+        ``action`` (10,): absolute target EEF pose (9, world frame) + gripper command in [-1, 1].
+    """
+
+    # Inputs / output structure.
+    n_obs_steps: int = 2
+    horizon: int = 16
+    n_action_steps: int = 8
+
+    # Poses must never be mean/std normalised (that breaks the geometry); every mode here is identity.
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.IDENTITY,
+            "ENV": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.IDENTITY,
+        }
+    )
+
+    # Adaptation module: poses in the current EEF frame, translations x scale, tanh before the network.
+    translation_scale: float = 10.0
+
+    # Flow matching.
+    action_space: str = "se3"  # "se3" (paper) or "euclidean" (flat [p, rot6d, gripper] vector)
+    num_inference_steps: int = 4
+    time_schedule: str = "uniform"  # "uniform" or "exponential" (shorter steps near the data)
+    time_schedule_rate: float = 2.0
+
+    # Loss weights of the velocity terms.
+    translation_loss_weight: float = 1.0
+    rotation_loss_weight: float = 1.0
+    gripper_loss_weight: float = 1.0
+    mask_padded_actions: bool = True  # actions past the episode end are copies: leave them out of the loss
+
+    # Architecture.
+    architecture: str = "ipa"  # "ipa" (A.1), "multi_token" (A.2) or "single_token" (A.3)
+    dim: int = 128
+    num_heads: int = 4
+    ipa_layers: int = 2
+    transformer_layers: int = 2
+    ipa_head_dim: int = 16
+    ipa_query_points: int = 4
+    ipa_value_points: int = 4
+    dropout: float = 0.0
+
+    # Runtime (real-robot options of the paper's appendix).
+    # Exponential smoothing of consecutive actions: a_out = alpha * a_prev + (1 - alpha) * a_new (0 = off).
+    action_smoothing: float = 0.0
+
+    # Training presets.
+    optimizer_lr: float = 3e-4
+    optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-4
+    optimizer_grad_clip_norm: float = 1.0
+    scheduler_warmup_steps: int = 500
+    scheduler_decay_steps: int = 100_000
+    scheduler_decay_lr: float = 1e-5
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.architecture not in ARCHITECTURES:
+            raise ValueError(f"architecture={self.architecture!r}; expected one of {ARCHITECTURES}")
+        if self.action_space not in ACTION_SPACES:
+            raise ValueError(f"action_space={self.action_space!r}; expected one of {ACTION_SPACES}")
+        if self.time_schedule not in TIME_SCHEDULES:
+            raise ValueError(f"time_schedule={self.time_schedule!r}; expected one of {TIME_SCHEDULES}")
+        if not 1 <= self.n_action_steps <= self.horizon:
+            raise ValueError(
+                f"n_action_steps={self.n_action_steps}, horizon={self.horizon}; expected "
+                "1 <= n_action_steps <= horizon (actions are taken from the predicted chunk)"
+            )
+        for name in ("n_obs_steps", "num_inference_steps", "dim", "num_heads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)}; expected an integer >= 1")
+        if self.dim % self.num_heads != 0:
+            raise ValueError(
+                f"dim={self.dim}, num_heads={self.num_heads}; dim must be divisible by num_heads"
+            )
+        if self.translation_scale <= 0:
+            raise ValueError(f"translation_scale={self.translation_scale}; expected > 0")
+        if not 0.0 <= self.action_smoothing < 1.0:
+            raise ValueError(f"action_smoothing={self.action_smoothing}; expected 0 <= alpha < 1")
+        for ftype in ("STATE", "ACTION"):
+            mode = self.normalization_mapping.get(ftype, NormalizationMode.IDENTITY)
+            if mode != NormalizationMode.IDENTITY:
+                raise ValueError(
+                    f"normalization_mapping[{ftype!r}]={mode}; ActionFlow's {ftype.lower()} features hold "
+                    "poses, "
+                    "which must stay unnormalised (IDENTITY): scaling them would break the SE(3) geometry"
+                )
+
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> CosineDecayWithWarmupSchedulerConfig:
+        return CosineDecayWithWarmupSchedulerConfig(
+            peak_lr=self.optimizer_lr,
+            decay_lr=self.scheduler_decay_lr,
+            num_warmup_steps=self.scheduler_warmup_steps,
+            num_decay_steps=self.scheduler_decay_steps,
+        )
+
+    def validate_features(self) -> None:
+        """Check the token keys and the 10-d action; say what is missing and what was expected."""
+        inputs = self.input_features or {}
+        missing = [k for k in (TOKEN_POSES, TOKEN_FEATURES) if k not in inputs]
+        if missing:
+            raise ValueError(
+                f"ActionFlow needs the input features {missing}, which are missing (got {sorted(inputs)}). "
+                f"Expected {TOKEN_POSES} with shape (N, 9) pose vectors {POSE_LAYOUT} "
+                "(token 0 = end effector) "
+                f"and {TOKEN_FEATURES} with shape (N, F)."
+            )
+        poses, feats = inputs[TOKEN_POSES].shape, inputs[TOKEN_FEATURES].shape
+        if len(poses) != 2 or poses[1] != POSE_DIM:
+            raise ValueError(
+                f"{TOKEN_POSES} has shape {tuple(poses)}; expected (N, 9) pose vectors {POSE_LAYOUT}"
+            )
+        if len(feats) != 2 or feats[0] != poses[0]:
+            raise ValueError(
+                f"{TOKEN_FEATURES} has shape {tuple(feats)} and {TOKEN_POSES} has shape {tuple(poses)}; "
+                "expected (N, F) with the same token count N as the poses"
+            )
+        if POINT_CLOUD in inputs and (
+            len(inputs[POINT_CLOUD].shape) != 2 or inputs[POINT_CLOUD].shape[1] != 3
+        ):
+            raise ValueError(f"{POINT_CLOUD} has shape {tuple(inputs[POINT_CLOUD].shape)}; expected (P, 3)")
+        for key, ft in self.image_features.items():
+            if len(ft.shape) != 3 or ft.shape[0] != 3:
+                raise ValueError(f"{key} has shape {tuple(ft.shape)}; expected a (3, H, W) RGB image")
+        action = (self.output_features or {}).get("action")
+        if action is None or action.type != FeatureType.ACTION:
+            raise ValueError(
+                f"ActionFlow needs an 'action' output feature (got {sorted(self.output_features or {})}); "
+                "expected shape (10,): target EEF pose (9) + gripper command"
+            )
+        if tuple(action.shape) != (POSE_DIM + 1,):
+            raise ValueError(
+                f"action has shape {tuple(action.shape)}; expected (10,): target EEF pose {POSE_LAYOUT} "
+                "+ gripper command in [-1, 1]"
+            )
+
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        return list(range(1 - self.n_obs_steps, 1))
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        # The chunk starts at the current step: every predicted action lies in the future.
+        return list(range(self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None

@@ -1,0 +1,187 @@
+"""Rectified (straight-line) flow matching on SE(3)^H x R^(H x m) and on R^(H x d).
+
+Time convention: t = 0 is noise, t = 1 is data (as in the paper; LeRobot's pi0 uses the opposite).
+
+SE(3) flow (paper Eq. 2-5). For an action pose T = (R, p) and extras e (e.g. the gripper command):
+
+    path       R_t = R_0 Exp(t Log(R_0^T R_1)),  p_t = (1 - t) p_0 + t p_1,  e_t = (1 - t) e_0 + t e_1
+    velocity   w = Log(R_t^T R_1) / (1 - t)            body-frame rotation velocity (constant on the path)
+               v = R_t^T (p_1 - p_t) / (1 - t)         translation velocity in the action's local frame
+               u = (e_1 - e_t) / (1 - t)
+    Euler      R <- R Exp(dt w),  p <- p + R v dt,  e <- e + u dt
+
+(The paper prints the translation velocity as ``R_t^T (p_t - p_1) / (1 - t)``; the sign that moves the
+sample towards the data, used here, is ``p_1 - p_t``.)
+
+Because velocities are expressed in each action's own frame, a network that is invariant to a global
+SE(3) transform yields samples that transform with it (paper appendix, "Equivariant Generation").
+
+A velocity vector is laid out as ``[v (3), w (3), u (m)]`` for SE(3) and as the plain vector for the
+Euclidean flow, so the network head is the same size-agnostic linear layer for both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from lerobot_actionflow import geometry as g
+
+
+@dataclass
+class SE3State:
+    """Action sequences: rotations ``[B, H, 3, 3]``, translations ``[B, H, 3]``, extras ``[B, H, m]``."""
+
+    rot: Tensor
+    trans: Tensor
+    extra: Tensor
+
+
+def time_grid(
+    num_steps: int,
+    schedule: Literal["uniform", "exponential"] = "uniform",
+    rate: float = 2.0,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> Tensor:
+    """Integration times ``t_0 = 0 < t_1 < ... < t_K = 1``, shape ``[K + 1]``.
+
+    ``"exponential"`` spaces the steps as ``t_k = (1 - exp(-rate k / K)) / (1 - exp(-rate))``: long steps
+    while the sample is still mostly noise, short steps near the data where precision matters.
+    """
+    if num_steps < 1:
+        raise ValueError(f"num_steps={num_steps}; expected an integer >= 1")
+    s = torch.linspace(0.0, 1.0, num_steps + 1, device=device, dtype=torch.float64)
+    if schedule == "uniform":
+        grid = s
+    elif schedule == "exponential":
+        if rate <= 0:
+            raise ValueError(f"rate={rate}; the exponential time grid needs rate > 0")
+        grid = (1.0 - torch.exp(-rate * s)) / (1.0 - math.exp(-rate))
+    else:
+        raise ValueError(f"schedule={schedule!r}; expected 'uniform' or 'exponential'")
+    grid[-1] = 1.0
+    return grid.to(dtype)
+
+
+class SE3Flow:
+    """Rectified flow on SE(3) x R^m per action step (paper Eq. 2-5).
+
+    Noise: rotations uniform on SO(3), translations and extras standard normal.
+    """
+
+    def __init__(self, extra_dim: int):
+        self.extra_dim = extra_dim
+        self.velocity_dim = 6 + extra_dim
+
+    def noise(
+        self,
+        batch: int,
+        horizon: int,
+        generator: torch.Generator | None = None,
+        device=None,
+        dtype: torch.dtype = torch.float32,
+    ) -> SE3State:
+        rot = g.random_rotation((batch, horizon), generator=generator, device=device, dtype=dtype)
+        trans = torch.randn(batch, horizon, 3, generator=generator, device=device, dtype=dtype)
+        extra = torch.randn(batch, horizon, self.extra_dim, generator=generator, device=device, dtype=dtype)
+        return SE3State(rot, trans, extra)
+
+    def interpolate(self, x0: SE3State, x1: SE3State, t: Tensor) -> tuple[SE3State, Tensor]:
+        """Point on the path at time ``t`` (``[B]``) and the target velocity there, ``[B, H, 6 + m]``.
+
+        Uses the closed forms that hold on the path, ``w = Log(R_0^T R_1)`` and ``v = R_t^T (p_1 - p_0)``,
+        which equal :meth:`conditional_velocity` without its division by ``1 - t``.
+        """
+        tb = t[:, None, None]  # [B, 1, 1]
+        omega = g.so3_log(x0.rot.transpose(-1, -2) @ x1.rot)  # [B, H, 3]
+        rot_t = x0.rot @ g.so3_exp(tb * omega)
+        trans_t = (1 - tb) * x0.trans + tb * x1.trans
+        extra_t = (1 - tb) * x0.extra + tb * x1.extra
+        v = torch.einsum("bhji,bhj->bhi", rot_t, x1.trans - x0.trans)
+        target = torch.cat([v, omega, x1.extra - x0.extra], dim=-1)
+        return SE3State(rot_t, trans_t, extra_t), target
+
+    def conditional_velocity(self, x: SE3State, x1: SE3State, t: Tensor) -> Tensor:
+        """The conditional field ``u_t(x | x_1)`` at an arbitrary state ``x`` (Eq. 3), ``[B, H, 6 + m]``.
+
+        Integrating it from any ``x`` at any ``t < 1`` reaches ``x_1`` at ``t = 1`` exactly.
+        """
+        remaining = (1 - t)[:, None, None]
+        omega = g.so3_log(x.rot.transpose(-1, -2) @ x1.rot) / remaining
+        v = torch.einsum("bhji,bhj->bhi", x.rot, x1.trans - x.trans) / remaining
+        u = (x1.extra - x.extra) / remaining
+        return torch.cat([v, omega, u], dim=-1)
+
+    def step(self, x: SE3State, velocity: Tensor, dt: float | Tensor) -> SE3State:
+        """One Euler step in the local frame (Eq. 5): ``R <- R Exp(dt w)``, ``p <- p + R v dt``."""
+        v, omega, u = velocity[..., :3], velocity[..., 3:6], velocity[..., 6:]
+        trans = x.trans + dt * torch.einsum("bhij,bhj->bhi", x.rot, v)
+        rot = x.rot @ g.so3_exp(dt * omega)
+        return SE3State(rot, trans, x.extra + dt * u)
+
+    def to_poses(self, x: SE3State) -> SE3State:
+        return x
+
+    def from_poses(self, x: SE3State) -> SE3State:
+        return x
+
+
+class EuclideanFlow:
+    """Rectified flow on the flat action vector ``[p (3), rot6d (6), extras (m)]`` (paper appendix).
+
+    Noise is standard normal in every dimension. The network sees the state as poses through
+    :meth:`to_poses`, whose rotation is the Gram-Schmidt frame of the current 6D part.
+    """
+
+    def __init__(self, extra_dim: int):
+        self.extra_dim = extra_dim
+        self.velocity_dim = 9 + extra_dim
+
+    def noise(
+        self,
+        batch: int,
+        horizon: int,
+        generator: torch.Generator | None = None,
+        device=None,
+        dtype: torch.dtype = torch.float32,
+    ) -> Tensor:
+        return torch.randn(batch, horizon, self.velocity_dim, generator=generator, device=device, dtype=dtype)
+
+    def interpolate(self, x0: Tensor, x1: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
+        tb = t[:, None, None]
+        return (1 - tb) * x0 + tb * x1, x1 - x0
+
+    def conditional_velocity(self, x: Tensor, x1: Tensor, t: Tensor) -> Tensor:
+        return (x1 - x) / (1 - t)[:, None, None]
+
+    def step(self, x: Tensor, velocity: Tensor, dt: float | Tensor) -> Tensor:
+        return x + dt * velocity
+
+    def to_poses(self, x: Tensor) -> SE3State:
+        return SE3State(g.rot6d_to_matrix(x[..., 3:9]), x[..., :3], x[..., 9:])
+
+    def from_poses(self, x: SE3State) -> Tensor:
+        return torch.cat([x.trans, g.matrix_to_rot6d(x.rot), x.extra], dim=-1)
+
+
+Flow = SE3Flow | EuclideanFlow
+VelocityFn = Callable[[object, Tensor], Tensor]
+
+
+def integrate(flow: Flow, velocity_fn: VelocityFn, x0, grid: Tensor, start: int = 0):
+    """Euler-integrate ``dx/dt = velocity_fn(x, t)`` over ``grid[start:]``; ``t`` is passed as ``[B]``.
+
+    ``velocity_fn`` receives the flow's native state (``SE3State`` or a tensor) and returns ``[B, H, D]``.
+    """
+    x = x0
+    batch = (x0.trans if isinstance(x0, SE3State) else x0).shape[0]
+    for k in range(start, grid.numel() - 1):
+        t = grid[k].expand(batch)
+        x = flow.step(x, velocity_fn(x, t), grid[k + 1] - grid[k])
+    return x

@@ -1,0 +1,190 @@
+"""The velocity network: observation and action tokens in, one velocity per action step out.
+
+It sees only tensors already brought into the scaled EEF frame by :mod:`lerobot_actionflow.adaptation`.
+Three architectures, selected by ``ActionFlowConfig.architecture`` (paper ablations):
+
+* ``"ipa"`` (A.1): every entity is a token with a pose; IPA blocks then a transformer encoder
+  (:class:`~lerobot_actionflow.ipa.SE3InvariantTransformer`).
+* ``"multi_token"`` (A.2): the same tokens, their poses embedded into the features by a linear layer,
+  a plain transformer encoder (no IPA).
+* ``"single_token"`` (A.3): all observation tokens concatenated into one conditioning token, plus the
+  action tokens, through a plain transformer encoder.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from lerobot_actionflow import geometry as g
+from lerobot_actionflow.adaptation import squash
+from lerobot_actionflow.encoders import ImageEncoder, PointCloudEncoder, VectorEncoder
+from lerobot_actionflow.ipa import SE3InvariantTransformer, transformer_encoder
+
+
+@dataclass
+class SceneTokens:
+    """Encoded observation tokens, computed once per action chunk and reused at every flow step.
+
+    ``features [B, M, C]``, ``rot [B, M, 3, 3]``, ``trans [B, M, 3]`` (scaled EEF frame, not squashed).
+    """
+
+    features: Tensor
+    rot: Tensor
+    trans: Tensor
+
+
+@dataclass
+class NetworkSpec:
+    """Everything the network needs to know about its inputs and outputs."""
+
+    token_feature_dim: int
+    tokens_per_step: int
+    n_obs_steps: int
+    horizon: int
+    action_input_dim: int  # per-step action quantities fed as features (gripper; flat vector for Euclidean)
+    velocity_dim: int
+    image_keys: tuple[str, ...] = ()
+    point_cloud: bool = False
+
+
+class FlowTimeEmbedding(nn.Module):
+    """Flow time ``t [B]`` in [0, 1] -> ``[B, dim]`` with sinusoidal features and an MLP."""
+
+    def __init__(self, dim: int):
+        super().__init__()
+        half = dim // 2
+        self.register_buffer(
+            "freqs", torch.exp(torch.linspace(0.0, math.log(1000.0), half)), persistent=False
+        )
+        self.mlp = nn.Sequential(nn.Linear(2 * half, dim), nn.GELU(), nn.Linear(dim, dim))
+
+    def forward(self, t: Tensor) -> Tensor:
+        angles = t[:, None] * self.freqs  # [B, half]
+        return self.mlp(torch.cat([angles.sin(), angles.cos()], dim=-1))
+
+
+def pose_features(rot: Tensor, trans: Tensor) -> Tensor:
+    """Pose as a 9-vector for the non-IPA variants: squashed translation and the 6D rotation."""
+    return torch.cat([squash(trans), g.matrix_to_rot6d(rot)], dim=-1)
+
+
+class ActionFlowNetwork(nn.Module):
+    def __init__(
+        self,
+        spec: NetworkSpec,
+        architecture: str,
+        dim: int,
+        num_heads: int,
+        ipa_layers: int,
+        transformer_layers: int,
+        ipa_head_dim: int,
+        ipa_query_points: int,
+        ipa_value_points: int,
+        dropout: float,
+    ):
+        super().__init__()
+        self.spec, self.architecture = spec, architecture
+        self.feature_encoder = VectorEncoder(spec.token_feature_dim, dim)
+        self.image_encoders = nn.ModuleDict({_module_key(k): ImageEncoder(dim) for k in spec.image_keys})
+        self.point_encoder = PointCloudEncoder(dim) if spec.point_cloud else None
+        extra_tokens = len(spec.image_keys) + int(spec.point_cloud)
+        # Which entity kind (scene token, each camera, the point cloud) and which history step a token is.
+        self.extra_token_embed = nn.Parameter(torch.randn(max(extra_tokens, 1), dim) * 0.02)
+        self.step_embed = nn.Parameter(torch.randn(spec.n_obs_steps, dim) * 0.02)
+        # Action tokens: a learnable feature, their index in the chunk, the flow time, their current values.
+        self.action_feature = nn.Parameter(torch.randn(dim) * 0.02)
+        self.action_index_embed = nn.Parameter(torch.randn(spec.horizon, dim) * 0.02)
+        self.time_embed = FlowTimeEmbedding(dim)
+        self.action_input = nn.Linear(spec.action_input_dim, dim)
+
+        if architecture == "ipa":
+            self.mixer = SE3InvariantTransformer(
+                dim,
+                num_heads,
+                ipa_layers,
+                transformer_layers,
+                ipa_head_dim,
+                ipa_query_points,
+                ipa_value_points,
+                dropout,
+            )
+        else:
+            self.pose_embed = nn.Linear(9, dim)
+            self.mixer = nn.Sequential(
+                transformer_encoder(dim, num_heads, transformer_layers, dropout), nn.LayerNorm(dim)
+            )
+        if architecture == "single_token":
+            num_obs_tokens = spec.n_obs_steps * (spec.tokens_per_step + extra_tokens)
+            self.obs_pool = nn.Sequential(
+                nn.Linear(num_obs_tokens * dim, dim), nn.GELU(), nn.Linear(dim, dim)
+            )
+        self.head = nn.Linear(dim, spec.velocity_dim)
+
+    def encode_observation(
+        self,
+        features: Tensor,
+        rot: Tensor,
+        trans: Tensor,
+        images: dict[str, Tensor] | None = None,
+        points: Tensor | None = None,
+    ) -> SceneTokens:
+        """Encode the observation once per chunk.
+
+        features ``[B, T, N, F]``; rot ``[B, T, N, 3, 3]``, trans ``[B, T, N, 3]`` in the scaled EEF frame;
+        images ``{key: [B, T, 3, H, W]}`` in [0, 1], posed at the EEF token of their step; points
+        ``[B, T, P, 3]`` in the scaled EEF frame, posed at their centroid.
+        """
+        b, t_steps, n, _ = features.shape
+        s = self.feature_encoder(features)  # [B, T, N, C]
+        feats, rots, transs = [s], [rot], [trans]
+        extra = 0
+        for key in self.spec.image_keys:
+            img = self.image_encoders[_module_key(key)](images[key])  # [B, T, C]
+            feats.append((img + self.extra_token_embed[extra])[:, :, None])
+            rots.append(rot[:, :, :1])
+            transs.append(trans[:, :, :1])
+            extra += 1
+        if self.point_encoder is not None:
+            centroid = points.mean(dim=-2)  # [B, T, 3]
+            pc = self.point_encoder(points - centroid[:, :, None])  # [B, T, C]
+            feats.append((pc + self.extra_token_embed[extra])[:, :, None])
+            rots.append(torch.eye(3, dtype=rot.dtype, device=rot.device).expand(b, t_steps, 1, 3, 3))
+            transs.append(centroid[:, :, None])
+        s = torch.cat(feats, dim=2) + self.step_embed[None, :, None]  # [B, T, N', C]
+        rot, trans = torch.cat(rots, dim=2), torch.cat(transs, dim=2)
+        s, rot, trans = s.flatten(1, 2), rot.flatten(1, 2), trans.flatten(1, 2)  # [B, M, ...]
+        if self.architecture != "ipa":
+            s = s + self.pose_embed(pose_features(rot, trans))
+        if self.architecture == "single_token":
+            s = self.obs_pool(s.flatten(1))[:, None]  # [B, 1, C]; its pose is unused
+        return SceneTokens(s, rot, trans)
+
+    def forward(
+        self, scene: SceneTokens, act_rot: Tensor, act_trans: Tensor, act_input: Tensor, t: Tensor
+    ) -> Tensor:
+        """Velocity ``[B, H, D_v]`` of action tokens at ``act_rot [B, H, 3, 3]``, ``act_trans [B, H, 3]``
+        (scaled EEF frame), with per-step inputs ``act_input [B, H, a]`` at flow time ``t [B]``."""
+        a = (
+            self.action_feature
+            + self.action_index_embed
+            + self.time_embed(t)[:, None]
+            + self.action_input(act_input)
+        )  # [B, H, C]
+        if self.architecture == "ipa":
+            s = torch.cat([scene.features, a], dim=1)
+            rot = torch.cat([scene.rot, act_rot], dim=1)
+            trans = squash(torch.cat([scene.trans, act_trans], dim=1))
+            out = self.mixer(s, rot, trans)
+        else:
+            a = a + self.pose_embed(pose_features(act_rot, act_trans))
+            out = self.mixer(torch.cat([scene.features, a], dim=1))
+        return self.head(out[:, -a.shape[1] :])
+
+
+def _module_key(feature_key: str) -> str:
+    """ModuleDict keys may not contain dots: ``observation.images.wrist -> observation_images_wrist``."""
+    return feature_key.replace(".", "_")

@@ -1,0 +1,36 @@
+"""Shared test helpers (imported by the test modules; pytest puts this folder on sys.path)."""
+
+from __future__ import annotations
+
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+from lerobot_actionflow import ActionFlowConfig
+from lerobot_actionflow import geometry as g
+
+N_TOKENS, N_FEATURES = 3, 4
+
+
+def make_config(**overrides) -> ActionFlowConfig:
+    """A CPU ActionFlowConfig for the synthetic 3-token task; keyword arguments override fields."""
+    cfg = ActionFlowConfig(device="cpu", **overrides)
+    cfg.input_features = {
+        "observation.token_poses": PolicyFeature(FeatureType.STATE, (N_TOKENS, 9)),
+        "observation.token_features": PolicyFeature(FeatureType.STATE, (N_TOKENS, N_FEATURES)),
+    }
+    cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (10,))}
+    return cfg
+
+
+def random_se3(seed: int, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+    """One random rigid transform: a Haar rotation and a translation of up to ~1 m."""
+    gen = torch.Generator().manual_seed(seed)
+    rot = g.random_rotation((), generator=gen, dtype=torch.float64)
+    trans = torch.randn(3, generator=gen, dtype=torch.float64) * 0.5
+    return rot.to(dtype), trans.to(dtype)
+
+
+def transform_pose9(rot: torch.Tensor, trans: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+    """Apply a world transform to pose vectors ``[*, 9]``."""
+    r, p = g.pose9_to_rt(pose)
+    return g.rt_to_pose9(*g.compose(rot.expand_as(r), trans.expand_as(p), r, p))
