@@ -193,13 +193,16 @@ def write_dataset(root, repo_id: str, episodes: int, steps: int = 30, seed: int 
 
     Returns the dataset. ``root`` must not exist yet (LeRobot refuses to overwrite a dataset).
     """
+    import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from tqdm import tqdm
 
     rollout = rollout_expert(sample_scenes(episodes, seed), steps)
     ds = LeRobotDataset.create(
         repo_id=repo_id, fps=fps, features=dataset_features(), root=root, use_videos=False
     )
-    for ep in range(episodes):
+    datasets.disable_progress_bars()  # one bar per episode otherwise; ours below counts episodes
+    for ep in tqdm(range(episodes), desc="recording episodes", unit="ep", disable=episodes < 5):
         for i in range(steps):
             poses = rollout["token_poses"][ep, i]
             feats = rollout["token_features"][ep, i]
@@ -216,3 +219,48 @@ def write_dataset(root, repo_id: str, episodes: int, steps: int = 30, seed: int 
         ds.save_episode()
     ds.finalize()
     return ds
+
+
+@dataclass
+class EvalResult:
+    success: Tensor  # [B] bool: within the tolerances with the gripper closed at the end
+    trans_error: Tensor  # [B] m, final EEF to grasp pose
+    rot_error: Tensor  # [B] rad
+
+
+@torch.no_grad()
+def evaluate_closed_loop(
+    select_action, scene: Scene, steps: int = 40, trans_tol: float = 0.01, rot_tol: float = 0.05
+) -> EvalResult:
+    """Roll a policy out in the kinematic synthetic scene (the EEF reaches each commanded pose exactly).
+
+    ``select_action`` maps an observation dict (``observation.token_poses [B, 3, 9]``,
+    ``observation.token_features [B, 3, 4]``, ``observation.state [B, 10]``) to actions ``[B, 10]``.
+    """
+    goal_rot, goal_trans = grasp_pose(scene)
+    eef_rot, eef_trans = scene.eef_rot, scene.eef_trans
+    width = torch.full(eef_trans.shape[:1], GRIPPER_OPEN_WIDTH, dtype=eef_trans.dtype)
+    gripper = -torch.ones_like(width)
+    for _ in range(steps):
+        current = Scene(
+            eef_rot,
+            eef_trans,
+            scene.target_rot,
+            scene.target_trans,
+            scene.distractor_rot,
+            scene.distractor_trans,
+        )
+        poses, feats = observe(current, width)
+        obs = {
+            "observation.token_poses": poses,
+            "observation.token_features": feats,
+            "observation.state": torch.cat([poses[:, 0], feats[:, 0, 3:4]], -1),
+        }
+        action = select_action(obs).to(torch.float64)
+        eef_rot, eef_trans = g.pose9_to_rt(action[:, :9])
+        gripper = action[:, 9]
+        width = torch.where(gripper > 0, 0.0, GRIPPER_OPEN_WIDTH).to(width.dtype)
+    trans_err = (eef_trans - goal_trans).norm(dim=-1)
+    rot_err = g.geodesic_distance(eef_rot, goal_rot)
+    success = (trans_err < trans_tol) & (rot_err < rot_tol) & (gripper > 0)
+    return EvalResult(success, trans_err, rot_err)
