@@ -77,6 +77,10 @@ class ActionFlowConfig(PreTrainedConfig):
     # Runtime (real-robot options of the paper's appendix).
     # Exponential smoothing of consecutive actions: a_out = alpha * a_prev + (1 - alpha) * a_new (0 = off).
     action_smoothing: float = 0.0
+    # Latency compensation: drop the actions of a new chunk whose time (at control_fps) passed while it was
+    # being generated, as on the real robot. Off in simulation, where the world waits for the policy.
+    latency_compensation: bool = False
+    control_fps: float = 20.0
 
     # Training presets.
     optimizer_lr: float = 3e-4
@@ -110,6 +114,8 @@ class ActionFlowConfig(PreTrainedConfig):
             )
         if self.translation_scale <= 0:
             raise ValueError(f"translation_scale={self.translation_scale}; expected > 0")
+        if self.control_fps <= 0:
+            raise ValueError(f"control_fps={self.control_fps}; expected > 0 (Hz)")
         if not 0.0 <= self.action_smoothing < 1.0:
             raise ValueError(f"action_smoothing={self.action_smoothing}; expected 0 <= alpha < 1")
         for ftype in ("STATE", "ACTION"):

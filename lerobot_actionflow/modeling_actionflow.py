@@ -10,6 +10,7 @@ Data flow for one chunk::
 
 from __future__ import annotations
 
+import time
 from collections import deque
 
 import torch
@@ -38,6 +39,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
 
     config_class = ActionFlowConfig
     name = "actionflow"
+    _clock = staticmethod(time.perf_counter)  # seconds; replaceable in tests
 
     def __init__(self, config: ActionFlowConfig, **kwargs):
         super().__init__(config)
@@ -229,8 +231,14 @@ class ActionFlowPolicy(PreTrainedPolicy):
             queue.append(batch[key])
         if not self._action_queue:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._obs_queues.items()}
+            start = self._clock()
             chunk = self.predict_action_chunk(history)
-            self._action_queue.extend(chunk[:, : self.config.n_action_steps].unbind(1))
+            skip = 0
+            if self.config.latency_compensation:
+                # Actions are due at 1 / control_fps intervals from the observation; keep at least one.
+                elapsed = self._clock() - start
+                skip = min(int(elapsed * self.config.control_fps), self.config.horizon - 1)
+            self._action_queue.extend(chunk[:, skip : skip + self.config.n_action_steps].unbind(1))
         action = self._action_queue.popleft()
         if self.config.action_smoothing > 0 and self._last_action is not None:
             action = smooth_action(self._last_action, action, self.config.action_smoothing)

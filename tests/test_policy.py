@@ -85,6 +85,23 @@ def test_select_action_serves_a_queue_of_n_action_steps():
     assert len(calls) == 4
 
 
+def test_latency_compensation_skips_actions_whose_time_has_passed():
+    """Inference that takes 0.12 s at 20 Hz: the first two actions of the new chunk are already late."""
+    torch.manual_seed(0)
+    policy = ActionFlowPolicy(
+        make_config(latency_compensation=True, control_fps=20.0, n_action_steps=4)
+    ).eval()
+    ticks = iter([0.0, 0.12])
+    policy._clock = lambda: next(ticks)
+    obs = {k: v[:, -1] for k, v in _batch(2).items() if k in OBS_KEYS}
+    torch.manual_seed(5)
+    first = policy.select_action(obs)
+    torch.manual_seed(5)
+    chunk = policy.predict_action_chunk(obs)
+    assert torch.equal(first, chunk[:, 2])
+    assert len(policy._action_queue) == 3  # actions 3, 4, 5 remain
+
+
 def test_action_smoothing_blends_on_se3():
     rot_a = torch.eye(3)
     rot_b = g.so3_exp(torch.tensor([0.0, 0.0, 0.4]))
