@@ -17,6 +17,7 @@ z axis) by at most ``max_step`` metres / radians per step, and closes once it is
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -41,6 +42,10 @@ class Scene:
     target_trans: Tensor
     distractor_rot: Tensor
     distractor_trans: Tensor
+
+    def with_eef(self, rot: Tensor, trans: Tensor) -> Scene:
+        """The same objects with the end effector at ``(rot, trans)``."""
+        return dataclasses.replace(self, eef_rot=rot, eef_trans=trans)
 
     def transformed(self, rot: Tensor, trans: Tensor) -> Scene:
         """The same scene moved rigidly by the world transform ``(rot [3, 3], trans [3])``."""
@@ -110,7 +115,17 @@ def expert_step(
     return rot, trans, gripper
 
 
-def observe(scene: Scene, gripper_width: Tensor) -> tuple[Tensor, Tensor]:
+def gripper_width(command: Tensor) -> Tensor:
+    """Opening (m) after a gripper command: closed for a positive command, fully open otherwise."""
+    return torch.where(command > 0, 0.0, GRIPPER_OPEN_WIDTH).to(command.dtype)
+
+
+def state_vector(poses: Tensor, feats: Tensor) -> Tensor:
+    """``observation.state`` ``[*, 10]``: the EEF pose (token 0) and the gripper opening."""
+    return torch.cat([poses[..., 0, :], feats[..., 0, 3:4]], -1)
+
+
+def observe(scene: Scene, width: Tensor) -> tuple[Tensor, Tensor]:
     """Token poses ``[B, 3, 9]`` and features ``[B, 3, 4]`` (float32) of a scene."""
     poses = torch.stack(
         [
@@ -122,7 +137,7 @@ def observe(scene: Scene, gripper_width: Tensor) -> tuple[Tensor, Tensor]:
     )
     feats = torch.zeros(poses.shape[0], NUM_TOKENS, FEATURE_DIM, dtype=poses.dtype)
     feats[:, :, :NUM_TOKENS] = torch.eye(NUM_TOKENS, dtype=poses.dtype)
-    feats[:, 0, 3] = gripper_width
+    feats[:, 0, 3] = width
     return poses.float(), feats.float()
 
 
@@ -134,21 +149,13 @@ def rollout_expert(scene: Scene, steps: int) -> dict[str, Tensor]:
     width = torch.full(eef_trans.shape[:1], GRIPPER_OPEN_WIDTH, dtype=eef_trans.dtype)
     out = {"token_poses": [], "token_features": [], "action": []}
     for _ in range(steps):
-        current = Scene(
-            eef_rot,
-            eef_trans,
-            scene.target_rot,
-            scene.target_trans,
-            scene.distractor_rot,
-            scene.distractor_trans,
-        )
-        poses, feats = observe(current, width)
+        poses, feats = observe(scene.with_eef(eef_rot, eef_trans), width)
         rot, trans, gripper = expert_step(eef_rot, eef_trans, goal_rot, goal_trans)
         out["token_poses"].append(poses)
         out["token_features"].append(feats)
         out["action"].append(torch.cat([g.rt_to_pose9(rot, trans), gripper[:, None]], -1).float())
         eef_rot, eef_trans = rot, trans
-        width = torch.where(gripper > 0, 0.0, GRIPPER_OPEN_WIDTH).to(width.dtype)
+        width = gripper_width(gripper)
     return {k: torch.stack(v, dim=1) for k, v in out.items()}
 
 
@@ -210,7 +217,7 @@ def write_dataset(root, repo_id: str, episodes: int, steps: int = 30, seed: int 
                 {
                     "observation.token_poses": poses.numpy(),
                     "observation.token_features": feats.numpy(),
-                    "observation.state": torch.cat([poses[0], feats[0, 3:4]]).numpy(),
+                    "observation.state": state_vector(poses, feats).numpy(),
                     "observation.environment_state": poses[1:].flatten().numpy(),
                     "action": rollout["action"][ep, i].numpy(),
                     "task": TASK_STRING,
@@ -242,24 +249,16 @@ def evaluate_closed_loop(
     width = torch.full(eef_trans.shape[:1], GRIPPER_OPEN_WIDTH, dtype=eef_trans.dtype)
     gripper = -torch.ones_like(width)
     for _ in range(steps):
-        current = Scene(
-            eef_rot,
-            eef_trans,
-            scene.target_rot,
-            scene.target_trans,
-            scene.distractor_rot,
-            scene.distractor_trans,
-        )
-        poses, feats = observe(current, width)
+        poses, feats = observe(scene.with_eef(eef_rot, eef_trans), width)
         obs = {
             "observation.token_poses": poses,
             "observation.token_features": feats,
-            "observation.state": torch.cat([poses[:, 0], feats[:, 0, 3:4]], -1),
+            "observation.state": state_vector(poses, feats),
         }
         action = select_action(obs).to(torch.float64)
         eef_rot, eef_trans = g.pose9_to_rt(action[:, :9])
         gripper = action[:, 9]
-        width = torch.where(gripper > 0, 0.0, GRIPPER_OPEN_WIDTH).to(width.dtype)
+        width = gripper_width(gripper)
     trans_err = (eef_trans - goal_trans).norm(dim=-1)
     rot_err = g.geodesic_distance(eef_rot, goal_rot)
     success = (trans_err < trans_tol) & (rot_err < rot_tol) & (gripper > 0)
