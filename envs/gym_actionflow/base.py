@@ -1,0 +1,316 @@
+"""Shared base of every gym_actionflow task: scene, robot, control, token observations, rendering.
+
+A task subclasses :class:`ManipulationEnv` and fills five small hooks:
+
+* ``_build_task(spec)``: add its objects and fixtures to the ``MjSpec``;
+* ``_cache_refs()``: look up the ids it needs in the compiled model;
+* ``_sample_layout(rng)``: place objects from ``self.np_random`` for the current ``variant``;
+* ``_entity_poses()``: the world pose of each non-EEF token, in ``entity_names`` order;
+* ``_check_success()``: the success rule, free of side effects.
+
+and may add per-token task scalars (``scalar_names`` / ``_task_scalars``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from gym_actionflow.geometry import axis_angle_matrix, gram_schmidt, pose9, rotation_angle, rotation_log
+from gym_actionflow.robot import MAX_FINGER, WRIST_CAMERA, PoseController, RobotRefs, add_panda
+
+CONTROL_HZ = 20
+SUBSTEPS = 25
+TIMESTEP = 1.0 / (CONTROL_HZ * SUBSTEPS)
+ROBOT_BASE = (-0.56, 0.0, 0.0)
+TABLE_TOP = 0.0
+"""The table top is the plane z = 0 of the world frame; the robot base stands on it at ``ROBOT_BASE``."""
+WORKSPACE_LOW = np.array([-0.35, -0.40, 0.005])
+WORKSPACE_HIGH = np.array([0.35, 0.40, 0.60])
+"""Action targets are clipped to this box (metres, world frame)."""
+MAX_STEP_POS = 0.03
+MAX_STEP_ROT = 0.3
+"""Rate limit of the commanded TCP target per control step (m, rad): larger jumps are cut short."""
+HOME_POS = np.array([-0.12, 0.0, 0.30])
+HOME_ROT = np.diag([1.0, -1.0, -1.0])
+"""Start pose: TCP 30 cm above the table, fingers pointing down, closing along the world y axis."""
+POSITION_BOUND = 5.0
+SCALAR_BOUND = 10.0
+"""Observation-space bounds: positions within 5 m of the table centre, task scalars within +-10."""
+_HOME_SEED = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.0])
+
+
+class ManipulationEnv(gym.Env):
+    """Franka Panda at a table, controlled by absolute TCP pose targets (see the task classes for details)."""
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}
+    entity_names: ClassVar[tuple[str, ...]] = ()
+    scalar_names: ClassVar[tuple[str, ...]] = ()
+    variants: ClassVar[tuple[str, ...]] = ("D0", "D1")
+    task_description: ClassVar[str] = ""
+
+    def __init__(
+        self,
+        variant: str = "D0",
+        obs_mode: str = "state",
+        render_mode: str | None = "rgb_array",
+        terminate_on_success: bool = True,
+        image_size: int = 84,
+        render_size: tuple[int, int] = (240, 320),
+    ) -> None:
+        if variant not in self.variants:
+            raise ValueError(f"variant={variant!r} is not one of {self.variants} for {type(self).__name__}")
+        if obs_mode not in ("state", "pixels"):
+            raise ValueError(f"obs_mode={obs_mode!r}; expected 'state' or 'pixels' (state + wrist camera)")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode={render_mode!r}; only 'rgb_array' (or None) is supported")
+        self.variant = variant
+        self.obs_mode = obs_mode
+        self.render_mode = render_mode
+        self.terminate_on_success = terminate_on_success
+        self.image_size = int(image_size)
+        self.render_size = tuple(render_size)
+
+        spec = self._build_scene()
+        self._build_task(spec)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.robot = RobotRefs.from_model(self.model)
+        self.controller = PoseController(self.model, self.robot)
+        self.home_q = self.controller.solve(_HOME_SEED, HOME_POS, HOME_ROT)
+        self.controller.rest = self.home_q.copy()
+        self._cache_refs()
+        self._renderers: dict[str, mujoco.Renderer] = {}
+        self._target_pos = HOME_POS.copy()
+        self._target_rot = HOME_ROT.copy()
+        self._q_target = self.home_q.copy()
+
+        n = self.n_tokens
+        self.feature_dim = n + 1 + len(self.scalar_names)
+        pose_high = np.array([POSITION_BOUND] * 3 + [1.0] * 6, dtype=np.float32)
+        feat_high = np.concatenate([np.ones(n), [2 * MAX_FINGER], np.full(len(self.scalar_names), SCALAR_BOUND)])
+        feat_low = np.concatenate([np.zeros(n + 1), np.full(len(self.scalar_names), -SCALAR_BOUND)])
+        state_high = np.concatenate([pose_high, [2 * MAX_FINGER]]).astype(np.float32)
+        state_low = np.concatenate([-pose_high, [0.0]]).astype(np.float32)
+        obs = {
+            "token_poses": spaces.Box(-np.tile(pose_high, (n, 1)), np.tile(pose_high, (n, 1)), dtype=np.float32),
+            "token_features": spaces.Box(
+                np.tile(feat_low, (n, 1)).astype(np.float32), np.tile(feat_high, (n, 1)).astype(np.float32),
+                dtype=np.float32,
+            ),
+            "agent_pos": spaces.Box(state_low, state_high, dtype=np.float32),
+            "environment_state": spaces.Box(-np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32),
+        }
+        if obs_mode == "pixels":
+            shape = (self.image_size, self.image_size, 3)
+            obs["pixels"] = spaces.Dict({"wrist": spaces.Box(0, 255, shape, dtype=np.uint8)})
+        self.observation_space = spaces.Dict(obs)
+        low = np.concatenate([WORKSPACE_LOW, -np.ones(6), [-1.0]]).astype(np.float32)
+        high = np.concatenate([WORKSPACE_HIGH, np.ones(6), [1.0]]).astype(np.float32)
+        self.action_space = spaces.Box(low, high, dtype=np.float32)
+
+    # ------------------------------------------------------------------ scene
+    def _build_scene(self) -> mujoco.MjSpec:
+        spec = mujoco.MjSpec()
+        spec.modelname = type(self).__name__
+        spec.compiler.degree = False  # joint ranges and angles in radians
+        spec.option.timestep = TIMESTEP
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+        spec.option.impratio = 10.0
+        spec.visual.quality.offsamples = 0
+        spec.visual.quality.shadowsize = 1024
+        spec.visual.headlight.ambient = (0.35, 0.35, 0.35)
+        spec.visual.headlight.diffuse = (0.5, 0.5, 0.5)
+        spec.visual.global_.offwidth = 640
+        spec.visual.global_.offheight = 480
+        spec.add_material(name="table", rgba=(0.62, 0.5, 0.38, 1.0))
+        spec.add_material(name="floor", rgba=(0.3, 0.32, 0.35, 1.0))
+        world = spec.worldbody
+        world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=(3, 3, 0.1), pos=(0, 0, -0.8),
+                       material="floor")
+        world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=(0.8, 0.8, 0.4),
+                       pos=(0.1, 0, TABLE_TOP - 0.4), material="table", friction=(1.0, 0.005, 0.0001))
+        world.add_light(pos=(0, 0, 2.0), dir=(0, 0, -1), diffuse=(0.6, 0.6, 0.6), castshadow=False)
+        world.add_camera(name="front", pos=(0.95, 0.0, 0.65), xyaxes=(0, 1, 0, -0.55, 0, 0.83), fovy=50.0)
+        add_panda(spec, ROBOT_BASE)
+        return spec
+
+    def _build_task(self, spec: mujoco.MjSpec) -> None:
+        raise NotImplementedError
+
+    def _cache_refs(self) -> None:
+        """Look up the ids the task needs after compilation (default: nothing)."""
+
+    def _sample_layout(self, rng: np.random.Generator) -> None:
+        raise NotImplementedError
+
+    def _entity_poses(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        raise NotImplementedError
+
+    def _task_scalars(self) -> np.ndarray:
+        """(n_tokens, len(scalar_names)) task scalars, e.g. a lid angle on the machine token."""
+        return np.zeros((self.n_tokens, len(self.scalar_names)))
+
+    def _check_success(self) -> bool:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ helpers for tasks
+    @property
+    def n_tokens(self) -> int:
+        return 1 + len(self.entity_names)
+
+    def body_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.data.xpos[body_id].copy(), self.data.xmat[body_id].reshape(3, 3).copy()
+
+    def set_free_pose(self, joint_name: str, pos: np.ndarray, quat: np.ndarray) -> None:
+        adr = self.model.joint(joint_name).qposadr[0]
+        self.data.qpos[adr : adr + 3] = pos
+        self.data.qpos[adr + 3 : adr + 7] = quat
+
+    def geoms_of(self, body_name: str) -> set[int]:
+        """Ids of every geom in a body and its descendants."""
+        root = self.model.body(body_name).id
+        ids = set()
+        for g in range(self.model.ngeom):
+            b = self.model.geom_bodyid[g]
+            while b not in (0, root):
+                b = self.model.body_parentid[b]
+            if b == root:
+                ids.add(g)
+        return ids
+
+    def touching(self, geoms_a: set[int], geoms_b: set[int]) -> bool:
+        for i in range(self.data.ncon):
+            c = self.data.contact[i]
+            if (c.geom1 in geoms_a and c.geom2 in geoms_b) or (c.geom2 in geoms_a and c.geom1 in geoms_b):
+                return True
+        return False
+
+    def is_grasped(self, object_geoms: set[int]) -> bool:
+        """Both finger pads touch the object."""
+        left, right = self.robot.pad_geoms
+        return self.touching({left}, object_geoms) and self.touching({right}, object_geoms)
+
+    def gripper_opening(self) -> float:
+        """Distance between the finger pads in metres (0 closed, 0.08 fully open)."""
+        return float(self.data.qpos[self.robot.finger_qpos].sum())
+
+    def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.data.site_xpos[self.robot.tcp].copy(), self.data.site_xmat[self.robot.tcp].reshape(3, 3).copy()
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[self.robot.qpos] = self.home_q
+        d.qpos[self.robot.finger_qpos] = MAX_FINGER
+        d.ctrl[self.robot.arm_ctrl] = self.home_q
+        d.ctrl[self.robot.finger_ctrl] = MAX_FINGER
+        self._q_target = self.home_q.copy()
+        self._target_pos, self._target_rot = HOME_POS.copy(), HOME_ROT.copy()
+        self._sample_layout(self.np_random)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_step(m, d, nstep=SUBSTEPS)  # let resting contacts settle
+        return self._observation(), self._info()
+
+    def step(self, action):
+        pos, rot, grip = self._parse_action(action)
+        # Rate limit relative to the previous commanded target.
+        delta = pos - self._target_pos
+        dist = np.linalg.norm(delta)
+        if dist > MAX_STEP_POS:
+            pos = self._target_pos + delta * (MAX_STEP_POS / dist)
+        rel = rotation_log(self._target_rot.T @ rot)
+        angle = np.linalg.norm(rel)
+        if angle > MAX_STEP_ROT:
+            rot = self._target_rot @ axis_angle_matrix(rel * (MAX_STEP_ROT / angle))
+        self._target_pos, self._target_rot = pos, rot
+        self._q_target = self.controller.solve(self._q_target, pos, rot)
+        d = self.data
+        d.ctrl[self.robot.arm_ctrl] = self._q_target
+        d.ctrl[self.robot.finger_ctrl] = MAX_FINGER * (1.0 - grip) / 2.0
+        mujoco.mj_step(self.model, d, nstep=SUBSTEPS)
+        obs = self._observation()
+        info = self._info()
+        success = info["is_success"]
+        return obs, float(success), bool(success and self.terminate_on_success), False, info
+
+    def _parse_action(self, action) -> tuple[np.ndarray, np.ndarray, float]:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (10,):
+            raise ValueError(
+                f"action has shape {a.shape}; expected (10,): target TCP pose [x, y, z, r00, r10, r20, r01, "
+                "r11, r21] in the world frame + gripper command in [-1 open, 1 close]"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains NaN or inf: {np.array2string(a, precision=4)}")
+        pos = np.clip(a[:3], WORKSPACE_LOW, WORKSPACE_HIGH)
+        rot = gram_schmidt(a[3:6], a[6:9])
+        return pos, rot, float(np.clip(a[9], -1.0, 1.0))
+
+    def is_success(self) -> bool:
+        """The task's success rule on the current state (no side effects)."""
+        return bool(self._check_success())
+
+    def _info(self) -> dict[str, Any]:
+        return {"is_success": self.is_success()}
+
+    def _observation(self) -> dict[str, Any]:
+        n = self.n_tokens
+        tcp_pos, tcp_rot = self.tcp_pose()
+        poses = np.empty((n, 9), dtype=np.float32)
+        poses[0] = pose9(tcp_pos, tcp_rot)
+        for i, (p, r) in enumerate(self._entity_poses(), start=1):
+            poses[i] = pose9(p, r)
+        feats = np.zeros((n, self.feature_dim), dtype=np.float32)
+        feats[np.arange(n), np.arange(n)] = 1.0
+        opening = self.gripper_opening()
+        feats[0, n] = opening
+        feats[:, n + 1 :] = self._task_scalars()
+        obs = {
+            "token_poses": poses,
+            "token_features": feats,
+            "agent_pos": np.concatenate([poses[0], [opening]]).astype(np.float32),
+            "environment_state": poses[1:].reshape(-1).copy(),
+        }
+        if self.obs_mode == "pixels":
+            obs["pixels"] = {"wrist": self._render_camera(WRIST_CAMERA, self.image_size, self.image_size)}
+        return obs
+
+    # ------------------------------------------------------------------ rendering
+    def _render_camera(self, camera: str, height: int, width: int) -> np.ndarray:
+        key = f"{camera}:{height}x{width}"
+        renderer = self._renderers.get(key)
+        if renderer is None:
+            try:
+                renderer = mujoco.Renderer(self.model, height=height, width=width)
+            except mujoco.FatalError as err:
+                raise RuntimeError(
+                    f"offscreen rendering failed ({err}). Set MUJOCO_GL=egl (or osmesa) in the environment, or "
+                    "import gym_actionflow before mujoco, so MuJoCo picks a headless GL backend."
+                ) from err
+            self._renderers[key] = renderer
+        renderer.update_scene(self.data, camera=camera)
+        return renderer.render().copy()
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            return None
+        return self._render_camera("front", *self.render_size)
+
+    def close(self) -> None:
+        for renderer in self._renderers.values():
+            renderer.close()
+        self._renderers.clear()
+
+    # ------------------------------------------------------------------ diagnostics
+    def tracking_error(self) -> tuple[float, float]:
+        """(position m, rotation rad) between the commanded target and the TCP."""
+        pos, rot = self.tcp_pose()
+        return float(np.linalg.norm(pos - self._target_pos)), rotation_angle(rot, self._target_rot)

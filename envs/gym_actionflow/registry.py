@@ -1,0 +1,41 @@
+"""The task table: one row per registered environment id ``gym_actionflow/<name>-v0``.
+
+Entry points are strings, so importing gym_actionflow stays cheap and a task module is imported only when used.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    name: str
+    entry_point: str
+    """``module:EnvClass`` of the environment."""
+    expert: str
+    """``module:ExpertClass`` of its scripted expert."""
+    max_episode_steps: int
+    variants: tuple[str, ...]
+
+    @property
+    def env_id(self) -> str:
+        return f"gym_actionflow/{self.name}-v0"
+
+
+def load(entry_point: str) -> type:
+    module, _, attr = entry_point.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+TASKS: tuple[TaskSpec, ...] = (
+    TaskSpec("StackThree", "gym_actionflow.tasks.stack_three:StackThreeEnv",
+             "gym_actionflow.experts.stack_three:StackThreeExpert", 400, ("D0", "D1")),
+    TaskSpec("ThreePieceAssembly", "gym_actionflow.tasks.three_piece_assembly:ThreePieceAssemblyEnv",
+             "gym_actionflow.experts.three_piece_assembly:ThreePieceAssemblyExpert", 500, ("D0", "D1")),
+    TaskSpec("Coffee", "gym_actionflow.tasks.coffee:CoffeeEnv",
+             "gym_actionflow.experts.coffee:CoffeeExpert", 500, ("D0", "D1")),
+    TaskSpec("Threading", "gym_actionflow.tasks.threading:ThreadingEnv",
+             "gym_actionflow.experts.threading:ThreadingExpert", 400, ("D0", "D1")),
+)

@@ -1,0 +1,122 @@
+"""gym_actionflow benchmark: env steps/s (state only and with the wrist camera) and scripted-expert success.
+
+    python eval/bench_envs.py [--episodes 100] [--tasks StackThree Coffee] [--noise 0 1] [--workers 2]
+
+Speed: single process, one core (MuJoCo is single-threaded), expert rollouts, only ``env.step`` timed.
+Success: ``--episodes`` seeded episodes (seeds 0..N-1) per task x variant x expert noise, in ``--workers``
+processes. Prints the tables and writes them to eval/results/envs_cpu.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import gym_actionflow  # noqa: E402
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results" / "envs_cpu.md"
+
+
+def time_steps(env_id: str, obs_mode: str, steps: int) -> float:
+    """Mean seconds per env.step over expert rollouts of ``steps`` steps in all."""
+    env = gym.make(env_id, obs_mode=obs_mode)
+    expert = gym_actionflow.make_expert(env, noise=1.0, seed=0)
+    total, count, seed = 0.0, 0, 0
+    while count < steps:
+        obs, _ = env.reset(seed=seed)
+        expert.reset()
+        seed += 1
+        while count < steps:
+            action = expert.act(obs)
+            t0 = time.perf_counter()
+            obs, _, terminated, truncated, _ = env.step(action)
+            total += time.perf_counter() - t0
+            count += 1
+            if terminated or truncated:
+                break
+    env.close()
+    return total / count
+
+
+def run_episode(args: tuple[str, str, float, int]) -> tuple[bool, int]:
+    env_id, variant, noise, seed = args
+    env = gym.make(env_id, variant=variant)
+    expert = gym_actionflow.make_expert(env, noise=noise, seed=seed)
+    obs, info = env.reset(seed=seed)
+    expert.reset()
+    steps = 0
+    while True:
+        obs, _, terminated, truncated, info = env.step(expert.act(obs))
+        steps += 1
+        if terminated or truncated:
+            break
+    env.close()
+    return bool(info["is_success"]), steps
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=100, help="seeded episodes per task x variant x noise")
+    parser.add_argument("--tasks", nargs="*", default=[t.name for t in gym_actionflow.TASKS])
+    parser.add_argument("--noise", type=float, nargs="*", default=[0.0, 1.0], help="expert noise levels")
+    parser.add_argument("--speed-steps", type=int, default=2000, help="timed env steps per task and obs mode")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    tasks = {t.name: t for t in gym_actionflow.TASKS}
+    unknown = sorted(set(args.tasks) - set(tasks))
+    if unknown:
+        parser.error(f"unknown task(s) {unknown}; known: {sorted(tasks)}")
+
+    speed_rows = []
+    for name in tqdm(args.tasks, desc="speed"):
+        env_id = tasks[name].env_id
+        state = time_steps(env_id, "state", args.speed_steps)
+        pixels = time_steps(env_id, "pixels", max(args.speed_steps // 4, 100))
+        speed_rows.append((name, 1.0 / state, 1.0 / pixels, 1000 * (pixels - state)))
+
+    jobs = [(tasks[n].env_id, v, noise) for n in args.tasks for v in tasks[n].variants for noise in args.noise]
+    success_rows = []
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        for env_id, variant, noise in tqdm(jobs, desc="experts"):
+            results = list(pool.map(run_episode, [(env_id, variant, noise, s) for s in range(args.episodes)]))
+            ok = [r[0] for r in results]
+            lengths = [r[1] for r in results]
+            success_rows.append((env_id.split("/")[1][:-3], variant, noise, np.mean(ok), np.mean(lengths)))
+
+    lines = [
+        "# gym_actionflow benchmark (CPU)",
+        "",
+        f"`python eval/bench_envs.py --episodes {args.episodes}` on {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} cores; speed measured in one process.",
+        "",
+        "| task | steps/s (state) | steps/s (state + 84x84 wrist RGB) | camera ms/step |",
+        "|---|---|---|---|",
+        *(f"| {n} | {s:.0f} | {p:.0f} | {ms:.1f} |" for n, s, p, ms in speed_rows),
+        "",
+        f"Scripted expert success over seeds 0..{args.episodes - 1}:",
+        "",
+        "| task | variant | noise | success | mean episode length |",
+        "|---|---|---|---|---|",
+        *(f"| {n} | {v} | {z:g} | {100 * s:.0f} % | {ln:.0f} |" for n, v, z, s, ln in success_rows),
+        "",
+    ]
+    text = "\n".join(lines)
+    print(text)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(text)
+    print(f"written to {args.output}")
+
+
+if __name__ == "__main__":
+    main()
