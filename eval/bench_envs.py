@@ -65,8 +65,12 @@ def run_episode(args: tuple[str, str, float, int]) -> tuple[bool, int]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=100, help="seeded episodes per task x variant x noise")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=100, help="seeded episodes per task x variant x noise"
+    )
     parser.add_argument("--tasks", nargs="*", default=[t.name for t in gym_actionflow.TASKS])
     parser.add_argument("--noise", type=float, nargs="*", default=[0.0, 1.0], help="expert noise levels")
     parser.add_argument("--speed-steps", type=int, default=2000, help="timed env steps per task and obs mode")
@@ -85,7 +89,9 @@ def main() -> None:
         pixels = time_steps(env_id, "pixels", max(args.speed_steps // 4, 100))
         speed_rows.append((name, 1.0 / state, 1.0 / pixels, 1000 * (pixels - state)))
 
-    jobs = [(tasks[n].env_id, v, noise) for n in args.tasks for v in tasks[n].variants for noise in args.noise]
+    jobs = [
+        (tasks[n].env_id, v, noise) for n in args.tasks for v in tasks[n].variants for noise in args.noise
+    ]
     success_rows = []
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         for env_id, variant, noise in tqdm(jobs, desc="experts"):
@@ -97,8 +103,8 @@ def main() -> None:
     lines = [
         "# gym_actionflow benchmark (CPU)",
         "",
-        f"`python eval/bench_envs.py --episodes {args.episodes}` on {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} cores; speed measured in one process.",
+        f"`python eval/bench_envs.py --episodes {args.episodes}` on "
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores; speed in one process.",
         "",
         "| task | steps/s (state) | steps/s (state + 84x84 wrist RGB) | camera ms/step |",
         "|---|---|---|---|",

@@ -1,4 +1,4 @@
-"""Every registered gym_actionflow task: Gymnasium API, observation schema, determinism, control, bad actions."""
+"""Every registered gym_actionflow task: Gymnasium API, observation schema, determinism, control, errors."""
 
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ def test_observation_schema(env_id):
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_same_seed_same_rollout_other_seed_other_layout(env_id):
-    """Guards against hidden randomness (global RNGs, unseeded samplers) that would make datasets irreproducible."""
+    """Guards against hidden randomness (global RNGs, unseeded samplers): datasets must be reproducible."""
 
     def rollout(seed: int) -> list[np.ndarray]:
         env = gym.make(env_id, variant="D1")
@@ -85,7 +85,7 @@ def test_same_seed_same_rollout_other_seed_other_layout(env_id):
 
 
 def test_tcp_observation_matches_forward_kinematics_of_the_flange():
-    """The EEF token is the TCP: 0.2354 m along the flange z axis (checked with scipy, not with MuJoCo's site)."""
+    """The EEF token is the TCP: 0.2354 m along the flange z axis (checked with scipy, not MuJoCo's site)."""
     env = gym.make("gym_actionflow/StackThree-v0")
     obs, _ = env.reset(seed=0)
     base = env.unwrapped
@@ -102,7 +102,9 @@ def test_commanded_pose_is_reached_within_1mm_and_0_01rad(seed):
     rng = np.random.default_rng(seed)
     target_pos = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.25, 0.25), rng.uniform(0.1, 0.4)])
     tilt = Rotation.from_rotvec(rng.normal(0.0, 0.3, 3))
-    target_rot = (tilt * Rotation.from_euler("x", np.pi) * Rotation.from_euler("z", rng.uniform(-1, 1))).as_matrix()
+    target_rot = (
+        tilt * Rotation.from_euler("x", np.pi) * Rotation.from_euler("z", rng.uniform(-1, 1))
+    ).as_matrix()
     action = np.concatenate([pose9(target_pos, target_rot), [-1.0]])
     for _ in range(40):  # rate-limited approach, then settling
         obs, *_ = env.step(action)
@@ -178,7 +180,9 @@ def test_wrist_pixels_and_front_render():
     frame = env.render()
     assert frame.shape == (240, 320, 3) and frame.dtype == np.uint8 and frame.std() > 5
     # The wrist camera moves with the hand.
-    obs2, *_ = env.step(np.concatenate([obs["token_poses"][0] + np.r_[0.03, 0.03, -0.03, np.zeros(6)], [-1.0]]))
+    obs2, *_ = env.step(
+        np.concatenate([obs["token_poses"][0] + np.r_[0.03, 0.03, -0.03, np.zeros(6)], [-1.0]])
+    )
     assert np.abs(obs2["pixels"]["wrist"].astype(int) - wrist).mean() > 1.0
     env.close()
 
@@ -210,8 +214,11 @@ def test_is_success_has_no_side_effects():
 
 
 def test_suite_imports_no_torch_and_no_lerobot():
-    code = "import sys, gymnasium as gym, gym_actionflow; gym.make('gym_actionflow/StackThree-v0').reset(seed=0); " \
-           "print(sorted(m for m in ('torch', 'lerobot') if m in sys.modules))"
+    code = (
+        "import sys, gymnasium as gym, gym_actionflow; "
+        "gym.make('gym_actionflow/StackThree-v0').reset(seed=0); "
+        "print(sorted(m for m in ('torch', 'lerobot') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 

@@ -92,18 +92,25 @@ class ManipulationEnv(gym.Env):
         n = self.n_tokens
         self.feature_dim = n + 1 + len(self.scalar_names)
         pose_high = np.array([POSITION_BOUND] * 3 + [1.0] * 6, dtype=np.float32)
-        feat_high = np.concatenate([np.ones(n), [2 * MAX_FINGER], np.full(len(self.scalar_names), SCALAR_BOUND)])
+        feat_high = np.concatenate(
+            [np.ones(n), [2 * MAX_FINGER], np.full(len(self.scalar_names), SCALAR_BOUND)]
+        )
         feat_low = np.concatenate([np.zeros(n + 1), np.full(len(self.scalar_names), -SCALAR_BOUND)])
         state_high = np.concatenate([pose_high, [2 * MAX_FINGER]]).astype(np.float32)
         state_low = np.concatenate([-pose_high, [0.0]]).astype(np.float32)
         obs = {
-            "token_poses": spaces.Box(-np.tile(pose_high, (n, 1)), np.tile(pose_high, (n, 1)), dtype=np.float32),
+            "token_poses": spaces.Box(
+                -np.tile(pose_high, (n, 1)), np.tile(pose_high, (n, 1)), dtype=np.float32
+            ),
             "token_features": spaces.Box(
-                np.tile(feat_low, (n, 1)).astype(np.float32), np.tile(feat_high, (n, 1)).astype(np.float32),
+                np.tile(feat_low, (n, 1)).astype(np.float32),
+                np.tile(feat_high, (n, 1)).astype(np.float32),
                 dtype=np.float32,
             ),
             "agent_pos": spaces.Box(state_low, state_high, dtype=np.float32),
-            "environment_state": spaces.Box(-np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32),
+            "environment_state": spaces.Box(
+                -np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32
+            ),
         }
         if obs_mode == "pixels":
             shape = (self.image_size, self.image_size, 3)
@@ -131,10 +138,21 @@ class ManipulationEnv(gym.Env):
         spec.add_material(name="table", rgba=(0.62, 0.5, 0.38, 1.0))
         spec.add_material(name="floor", rgba=(0.3, 0.32, 0.35, 1.0))
         world = spec.worldbody
-        world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=(3, 3, 0.1), pos=(0, 0, -0.8),
-                       material="floor")
-        world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=(0.8, 0.8, 0.4),
-                       pos=(0.1, 0, TABLE_TOP - 0.4), material="table", friction=(1.0, 0.005, 0.0001))
+        world.add_geom(
+            name="floor",
+            type=mujoco.mjtGeom.mjGEOM_PLANE,
+            size=(3, 3, 0.1),
+            pos=(0, 0, -0.8),
+            material="floor",
+        )
+        world.add_geom(
+            name="table",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=(0.8, 0.8, 0.4),
+            pos=(0.1, 0, TABLE_TOP - 0.4),
+            material="table",
+            friction=(1.0, 0.005, 0.0001),
+        )
         world.add_light(pos=(0, 0, 2.0), dir=(0, 0, -1), diffuse=(0.6, 0.6, 0.6), castshadow=False)
         world.add_camera(name="front", pos=(0.95, 0.0, 0.65), xyaxes=(0, 1, 0, -0.55, 0, 0.83), fovy=50.0)
         add_panda(spec, ROBOT_BASE)
@@ -201,7 +219,9 @@ class ManipulationEnv(gym.Env):
         return float(self.data.qpos[self.robot.finger_qpos].sum())
 
     def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.data.site_xpos[self.robot.tcp].copy(), self.data.site_xmat[self.robot.tcp].reshape(3, 3).copy()
+        return self.data.site_xpos[self.robot.tcp].copy(), self.data.site_xmat[self.robot.tcp].reshape(
+            3, 3
+        ).copy()
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -292,8 +312,8 @@ class ManipulationEnv(gym.Env):
                 renderer = mujoco.Renderer(self.model, height=height, width=width)
             except mujoco.FatalError as err:
                 raise RuntimeError(
-                    f"offscreen rendering failed ({err}). Set MUJOCO_GL=egl (or osmesa) in the environment, or "
-                    "import gym_actionflow before mujoco, so MuJoCo picks a headless GL backend."
+                    f"offscreen rendering failed ({err}). Set MUJOCO_GL=egl (or osmesa) in the environment, "
+                    "or import gym_actionflow before mujoco, so MuJoCo picks a headless GL backend."
                 ) from err
             self._renderers[key] = renderer
         renderer.update_scene(self.data, camera=camera)

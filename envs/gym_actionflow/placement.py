@@ -26,7 +26,10 @@ def square(half: float, center: tuple[float, float] = (0.0, 0.0), yaw=(0.0, 2 * 
 
 
 def sample_separated(
-    rng: np.random.Generator, regions: list[Region], radii: list[float], fixed: list[tuple[np.ndarray, float]] = (),
+    rng: np.random.Generator,
+    regions: list[Region],
+    radii: list[float],
+    fixed: list[tuple[np.ndarray, float]] = (),
     max_tries: int = 1000,
 ) -> list[tuple[np.ndarray, float]]:
     """One (xy, yaw) per region such that the discs of the given radii (and the ``fixed`` (xy, radius) discs)
@@ -39,7 +42,9 @@ def sample_separated(
             if all(np.linalg.norm(xy - c) > radius + r for c, r in discs):
                 break
         else:
-            raise RuntimeError(f"could not place an object of radius {radius} in {region} after {max_tries} tries")
+            raise RuntimeError(
+                f"could not place an object of radius {radius} in {region} after {max_tries} tries"
+            )
         placed.append((xy, yaw))
         discs.append((xy, radius))
     return placed

@@ -1,6 +1,6 @@
 """The task table: one row per registered environment id ``gym_actionflow/<name>-v0``.
 
-Entry points are strings, so importing gym_actionflow stays cheap and a task module is imported only when used.
+Entry points are strings, so importing gym_actionflow stays cheap: a task module is imported when used.
 """
 
 from __future__ import annotations
@@ -30,12 +30,32 @@ def load(entry_point: str) -> type:
 
 
 TASKS: tuple[TaskSpec, ...] = (
-    TaskSpec("StackThree", "gym_actionflow.tasks.stack_three:StackThreeEnv",
-             "gym_actionflow.experts.stack_three:StackThreeExpert", 400, ("D0", "D1")),
-    TaskSpec("ThreePieceAssembly", "gym_actionflow.tasks.three_piece_assembly:ThreePieceAssemblyEnv",
-             "gym_actionflow.experts.three_piece_assembly:ThreePieceAssemblyExpert", 500, ("D0", "D1")),
-    TaskSpec("Coffee", "gym_actionflow.tasks.coffee:CoffeeEnv",
-             "gym_actionflow.experts.coffee:CoffeeExpert", 500, ("D0", "D1")),
-    TaskSpec("Threading", "gym_actionflow.tasks.threading:ThreadingEnv",
-             "gym_actionflow.experts.threading:ThreadingExpert", 400, ("D0", "D1")),
+    TaskSpec(
+        "StackThree",
+        "gym_actionflow.tasks.stack_three:StackThreeEnv",
+        "gym_actionflow.experts.stack_three:StackThreeExpert",
+        400,
+        ("D0", "D1"),
+    ),
+    TaskSpec(
+        "ThreePieceAssembly",
+        "gym_actionflow.tasks.three_piece_assembly:ThreePieceAssemblyEnv",
+        "gym_actionflow.experts.three_piece_assembly:ThreePieceAssemblyExpert",
+        500,
+        ("D0", "D1"),
+    ),
+    TaskSpec(
+        "Coffee",
+        "gym_actionflow.tasks.coffee:CoffeeEnv",
+        "gym_actionflow.experts.coffee:CoffeeExpert",
+        500,
+        ("D0", "D1"),
+    ),
+    TaskSpec(
+        "Threading",
+        "gym_actionflow.tasks.threading:ThreadingEnv",
+        "gym_actionflow.experts.threading:ThreadingExpert",
+        400,
+        ("D0", "D1"),
+    ),
 )

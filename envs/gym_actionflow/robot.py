@@ -80,14 +80,25 @@ def add_panda(spec: mujoco.MjSpec, base_pos: tuple[float, float, float]) -> None
 
     def visual(body: mujoco.MjsBody, mesh: str, **kwargs) -> None:
         body.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh, contype=0, conaffinity=0, group=2,
-            density=0, material=kwargs.pop("material", "panda_white"), **kwargs,
+            type=mujoco.mjtGeom.mjGEOM_MESH,
+            meshname=mesh,
+            contype=0,
+            conaffinity=0,
+            group=2,
+            density=0,
+            material=kwargs.pop("material", "panda_white"),
+            **kwargs,
         )
 
     def collision_capsule(body: mujoco.MjsBody, a, b, radius: float) -> None:
         body.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=(*a, *b), size=(radius, 0, 0),
-            contype=2, conaffinity=1, group=3, density=0,
+            type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+            fromto=(*a, *b),
+            size=(radius, 0, 0),
+            contype=2,
+            conaffinity=1,
+            group=3,
+            density=0,
         )
 
     base = spec.worldbody.add_body(name="panda_link0", pos=base_pos)
@@ -96,8 +107,13 @@ def add_panda(spec: mujoco.MjSpec, base_pos: tuple[float, float, float]) -> None
     for i, ((name, pos, euler, rng), mass) in enumerate(zip(_CHAIN, _MASSES, strict=True)):
         body = parent.add_body(name=f"panda_{name}", pos=pos, quat=_euler_quat(euler), gravcomp=1.0)
         body.add_joint(
-            name=ARM_JOINTS[i], type=mujoco.mjtJoint.mjJNT_HINGE, axis=(0, 0, 1), range=rng,
-            limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=1.0, armature=0.1,
+            name=ARM_JOINTS[i],
+            type=mujoco.mjtJoint.mjJNT_HINGE,
+            axis=(0, 0, 1),
+            range=rng,
+            limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+            damping=1.0,
+            armature=0.1,
         )
         visual(body, f"panda_{name}")
         body.mass = mass
@@ -113,13 +129,21 @@ def add_panda(spec: mujoco.MjSpec, base_pos: tuple[float, float, float]) -> None
     hand.mass, hand.inertia, hand.explicitinertial = 0.81909, (0.003, 0.003, 0.002), True
     visual(hand, "panda_hand")
     hand.add_geom(
-        type=mujoco.mjtGeom.mjGEOM_BOX, pos=(0, 0, 0.025), size=(0.03, 0.1, 0.03),
-        contype=2, conaffinity=1, group=3, density=0,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        pos=(0, 0, 0.025),
+        size=(0.03, 0.1, 0.03),
+        contype=2,
+        conaffinity=1,
+        group=3,
+        density=0,
     )
-    hand.add_site(name=TCP_SITE, pos=(0, 0, TCP_OFFSET - 0.107), size=(0.004, 0, 0), group=4,
-                  rgba=(1, 0, 0, 1))
+    hand.add_site(
+        name=TCP_SITE, pos=(0, 0, TCP_OFFSET - 0.107), size=(0.004, 0, 0), group=4, rgba=(1, 0, 0, 1)
+    )
     hand.add_camera(
-        name=WRIST_CAMERA, pos=(0.06, 0, 0.03), quat=_euler_quat((0, np.pi, np.pi / 2 + 0.0)),
+        name=WRIST_CAMERA,
+        pos=(0.06, 0, 0.03),
+        quat=_euler_quat((0, np.pi, np.pi / 2 + 0.0)),
         fovy=75.0,
     )
     # The camera looks along the TCP's +z (down towards the fingers), mounted on the hand's side.
@@ -127,19 +151,38 @@ def add_panda(spec: mujoco.MjSpec, base_pos: tuple[float, float, float]) -> None
         finger = hand.add_body(name=f"{joint}_body", pos=(0, 0, 0.0584), gravcomp=1.0)
         finger.mass, finger.inertia, finger.explicitinertial = 0.05, (1e-5, 1e-5, 1e-5), True
         finger.add_joint(
-            name=joint, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=(0, side, 0), range=(0, MAX_FINGER),
-            limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=5.0, armature=0.5,
+            name=joint,
+            type=mujoco.mjtJoint.mjJNT_SLIDE,
+            axis=(0, side, 0),
+            range=(0, MAX_FINGER),
+            limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+            damping=5.0,
+            armature=0.5,
         )
         visual(finger, "panda_finger", quat=(1, 0, 0, 0) if side > 0 else (0, 0, 0, 1), material="panda_dark")
         # Pad: inner face at y = 0 of the finger frame (fingers touch when both joints are 0).
         finger.add_geom(
-            name=f"{joint}_pad", type=mujoco.mjtGeom.mjGEOM_BOX, pos=(0, side * 0.006, 0.07),
-            size=(0.009, 0.006, 0.018), contype=2, conaffinity=1, group=3, density=0,
-            friction=(1.5, 0.02, 0.001), condim=4, solref=(0.004, 1.0), solimp=(0.95, 0.99, 0.001, 0.5, 2),
+            name=f"{joint}_pad",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=(0, side * 0.006, 0.07),
+            size=(0.009, 0.006, 0.018),
+            contype=2,
+            conaffinity=1,
+            group=3,
+            density=0,
+            friction=(1.5, 0.02, 0.001),
+            condim=4,
+            solref=(0.004, 1.0),
+            solimp=(0.95, 0.99, 0.001, 0.5, 2),
         )
         finger.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_BOX, pos=(0, side * 0.012, 0.035), size=(0.009, 0.008, 0.02),
-            contype=2, conaffinity=1, group=3, density=0,
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=(0, side * 0.012, 0.035),
+            size=(0.009, 0.008, 0.02),
+            contype=2,
+            conaffinity=1,
+            group=3,
+            density=0,
         )
 
     for joint, kp, force in zip(ARM_JOINTS, _KP, _FORCE, strict=True):
@@ -196,8 +239,15 @@ class PoseController:
     redundant (null-space) motion gently towards a rest posture so the elbow does not drift over an episode.
     """
 
-    def __init__(self, model: mujoco.MjModel, refs: RobotRefs, damping: float = 1e-4, iterations: int = 20,
-                 tolerance: float = 1e-5, rest: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        refs: RobotRefs,
+        damping: float = 1e-4,
+        iterations: int = 20,
+        tolerance: float = 1e-5,
+        rest: np.ndarray | None = None,
+    ) -> None:
         self.model = model
         self.refs = refs
         self.scratch = mujoco.MjData(model)
@@ -230,7 +280,11 @@ class PoseController:
             x = d.site_xpos[r.tcp]
             xr = d.site_xmat[r.tcp].reshape(3, 3)
             err = np.concatenate([pos - x, xr @ rotation_log(xr.T @ rot)])
-            if it > 0 and err[:3] @ err[:3] < self.tolerance**2 and err[3:] @ err[3:] < (10 * self.tolerance) ** 2:
+            if (
+                it > 0
+                and err[:3] @ err[:3] < self.tolerance**2
+                and err[3:] @ err[3:] < (10 * self.tolerance) ** 2
+            ):
                 break
             mujoco.mj_comPos(m, d)
             mujoco.mj_jacSite(m, d, self._jacp, self._jacr, r.tcp)

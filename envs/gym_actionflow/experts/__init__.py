@@ -11,8 +11,8 @@ from gym_actionflow.registry import TASKS, load
 def make_expert(env: gym.Env, noise: float = 0.0, seed: int | None = None) -> ScriptedExpert:
     """The scripted expert for ``env`` (a gym_actionflow env, wrapped or not).
 
-    Call ``expert.reset()`` after each ``env.reset()``, then ``expert.act(obs)`` for each step. ``noise`` scales
-    waypoint offsets and action jitter (0: deterministic); ``seed`` seeds that noise.
+    Call ``expert.reset()`` after each ``env.reset()``, then ``expert.act(obs)`` for each step. ``noise``
+    scales waypoint offsets and action jitter (0: deterministic); ``seed`` seeds that noise.
     """
     base = env.unwrapped
     key = f"{type(base).__module__}:{type(base).__name__}"

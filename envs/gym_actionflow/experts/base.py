@@ -40,7 +40,9 @@ class ScriptedExpert:
     def __init__(self, env: gym.Env, noise: float = 0.0, seed: int | None = None) -> None:
         self.env: ManipulationEnv = env.unwrapped  # type: ignore[assignment]
         if not isinstance(self.env, ManipulationEnv):
-            raise TypeError(f"{type(self).__name__} drives gym_actionflow envs; got {type(self.env).__name__}")
+            raise TypeError(
+                f"{type(self).__name__} drives gym_actionflow envs; got {type(self.env).__name__}"
+            )
         if noise < 0:
             raise ValueError(f"noise={noise}; expected >= 0")
         self.noise = float(noise)
@@ -90,16 +92,25 @@ class ScriptedExpert:
             rot = rot @ axis_angle_matrix(self.rng.normal(0.0, JITTER_ROT * self.noise, 3))
         return np.concatenate([pose9(pos, rot), [self.grip]]).astype(np.float32)
 
-    def move_to(self, pos, rot, speed: float | None = None, rot_speed: float | None = None,
-                tolerance: float = 0.003, max_wait: int = 10) -> Iterator[np.ndarray]:
-        """Move the commanded pose in a straight line (and a geodesic in rotation) to (pos, rot), then wait up to
-        ``max_wait`` steps for the TCP to arrive within ``tolerance`` metres."""
+    def move_to(
+        self,
+        pos,
+        rot,
+        speed: float | None = None,
+        rot_speed: float | None = None,
+        tolerance: float = 0.003,
+        max_wait: int = 10,
+    ) -> Iterator[np.ndarray]:
+        """Move the commanded pose in a straight line (and a geodesic in rotation) to (pos, rot), then wait
+        up to ``max_wait`` steps for the TCP to arrive within ``tolerance`` metres."""
         speed = speed or self.speed
         rot_speed = rot_speed or self.rot_speed
         start_pos, start_rot = self.cmd_pos.copy(), self.cmd_rot.copy()
         goal_pos = np.asarray(pos, dtype=np.float64)
         rel = rotation_log(start_rot.T @ rot)
-        n = int(np.ceil(max(np.linalg.norm(goal_pos - start_pos) / speed, np.linalg.norm(rel) / rot_speed, 1)))
+        n = int(
+            np.ceil(max(np.linalg.norm(goal_pos - start_pos) / speed, np.linalg.norm(rel) / rot_speed, 1))
+        )
         for k in range(1, n + 1):
             s = k / n
             s = s * s * (3 - 2 * s)  # smooth start and stop
@@ -142,5 +153,5 @@ def top_down(yaw: float) -> np.ndarray:
 
 
 def symmetric_yaw(yaw: float, period: float, reference: float = 0.0) -> float:
-    """The angle equal to ``yaw`` modulo ``period`` that is closest to ``reference`` (wrist-friendly grasps)."""
+    """The angle equal to ``yaw`` modulo ``period`` closest to ``reference`` (wrist-friendly grasps)."""
     return reference + (yaw - reference + period / 2) % period - period / 2

@@ -20,8 +20,15 @@ def add_box_object(spec: mujoco.MjSpec, name: str, half: tuple[float, float, flo
     """A free-floating box body named ``name`` with a free joint ``name + '_joint'``."""
     body = spec.worldbody.add_body(name=name)
     body.add_freejoint(name=f"{name}_joint")
-    body.add_geom(name=f"{name}_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=half, rgba=rgba, density=density,
-                  friction=(1.0, 0.005, 0.0001), condim=4)
+    body.add_geom(
+        name=f"{name}_geom",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=half,
+        rgba=rgba,
+        density=density,
+        friction=(1.0, 0.005, 0.0001),
+        condim=4,
+    )
     return body
 
 
@@ -43,15 +50,16 @@ class StackThreeEnv(ManipulationEnv):
 
     ## Action
     (10,) float32: absolute target TCP pose (9, world frame) + gripper command in [-1 open, 1 close]. The
-    rotation is orthonormalised, the position clipped to the workspace and each step rate-limited to 3 cm / 0.3 rad.
+    rotation is orthonormalised, the position clipped to the workspace and each step rate-limited to
+    3 cm / 0.3 rad.
 
     ## Success
-    Cube A touches cube B and rests above it, cube C touches cube A and rests above it, A and C are lifted off the
-    table (bottom faces more than 1 cm above it, no table contact) and neither is held by the gripper.
+    Cube A touches cube B and rests above it, cube C touches cube A and rests above it, A and C are lifted off
+    the table (bottom faces more than 1 cm above it, no table contact) and neither is held by the gripper.
 
     ## Starting state
-    The arm at its home pose, gripper open. Cubes on the table, non-overlapping, yaw uniform in [0, 2 pi), x and y
-    uniform in +-0.10 m (`variant="D0"`) or +-0.20 m (`variant="D1"`) around the table centre.
+    The arm at its home pose, gripper open. Cubes on the table, non-overlapping, yaw uniform in [0, 2 pi), x
+    and y uniform in +-0.10 m (`variant="D0"`) or +-0.20 m (`variant="D1"`) around the table centre.
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (400).
