@@ -64,7 +64,7 @@ def test_a_on_b_without_c_is_not_success():
     place(env, "cube_a", (0.1, 0.0), 2 * CUBE_HALF["cube_b"])
     place(env, "cube_c", (-0.1, 0.1), 0.0)
     settle(env)
-    assert env._stacked("cube_a", "cube_b")
+    assert env.stacked("cube_a", "cube_b")
     assert not env.is_success()
 
 
@@ -78,7 +78,7 @@ def test_c_on_a_beside_b_is_not_success():
     assert not env.is_success()
 
 
-def test_cube_a_held_above_b_is_not_stacked():
+def test_cube_a_held_above_b_is_notstacked():
     """Holding cube A above B is not success: A must rest on B, released and touching."""
     env = fresh_env()
     place(env, "cube_b", (0.0, 0.1), 0.0)
@@ -92,13 +92,13 @@ def test_cube_a_held_above_b_is_not_stacked():
     for _ in range(30):
         env.step(np.concatenate([pose9(target, tcp_rot), [1.0]]))
     assert env.is_grasped(env.cube_geoms["cube_a"])
-    assert not env._stacked("cube_a", "cube_b")
+    assert not env.stacked("cube_a", "cube_b")
     # Pressing it onto B while still holding it is not stacked either.
     target[2] -= 0.006
     for _ in range(10):
         env.step(np.concatenate([pose9(target, tcp_rot), [1.0]]))
     assert env.touching(env.cube_geoms["cube_a"], env.cube_geoms["cube_b"])
-    assert not env._stacked("cube_a", "cube_b")
+    assert not env.stacked("cube_a", "cube_b")
 
 
 def test_d1_spreads_cubes_wider_than_d0():

@@ -13,6 +13,9 @@ and may add per-token task scalars (``scalar_names`` / ``_task_scalars``).
 
 from __future__ import annotations
 
+import atexit
+import functools
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -35,6 +38,8 @@ WORKSPACE_HIGH = np.array([0.35, 0.40, 0.60])
 MAX_STEP_POS = 0.03
 MAX_STEP_ROT = 0.3
 """Rate limit of the commanded TCP target per control step (m, rad): larger jumps are cut short."""
+MAX_JOINT_STEP = np.array([2.175] * 4 + [2.61] * 3) / CONTROL_HZ
+"""Cap on the per-step change of the arm joint targets: Panda joint velocity limits (rad/s) over 50 ms."""
 HOME_POS = np.array([-0.12, 0.0, 0.30])
 HOME_ROT = np.diag([1.0, -1.0, -1.0])
 """Start pose: TCP 30 cm above the table, fingers pointing down, closing along the world y axis."""
@@ -42,6 +47,12 @@ POSITION_BOUND = 5.0
 SCALAR_BOUND = 10.0
 """Observation-space bounds: positions within 5 m of the table centre, task scalars within +-10."""
 _HOME_SEED = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.0])
+
+
+def _close_renderers(renderers: dict[str, mujoco.Renderer]) -> None:
+    for renderer in renderers.values():
+        renderer.close()
+    renderers.clear()
 
 
 class ManipulationEnv(gym.Env):
@@ -85,6 +96,7 @@ class ManipulationEnv(gym.Env):
         self.controller.rest = self.home_q.copy()
         self._cache_refs()
         self._renderers: dict[str, mujoco.Renderer] = {}
+        self._exit_hook: Callable[[], None] | None = None
         self._target_pos = HOME_POS.copy()
         self._target_rot = HOME_ROT.copy()
         self._q_target = self.home_q.copy()
@@ -251,7 +263,9 @@ class ManipulationEnv(gym.Env):
         if angle > MAX_STEP_ROT:
             rot = self._target_rot @ axis_angle_matrix(rel * (MAX_STEP_ROT / angle))
         self._target_pos, self._target_rot = pos, rot
-        self._q_target = self.controller.solve(self._q_target, pos, rot)
+        q = self.controller.solve(self._q_target, pos, rot)
+        # Joint velocity limit: an IK branch switch can never fling the arm.
+        self._q_target = self._q_target + np.clip(q - self._q_target, -MAX_JOINT_STEP, MAX_JOINT_STEP)
         d = self.data
         d.ctrl[self.robot.arm_ctrl] = self._q_target
         d.ctrl[self.robot.finger_ctrl] = MAX_FINGER * (1.0 - grip) / 2.0
@@ -316,6 +330,11 @@ class ManipulationEnv(gym.Env):
                     "or import gym_actionflow before mujoco, so MuJoCo picks a headless GL backend."
                 ) from err
             self._renderers[key] = renderer
+            if self._exit_hook is None:
+                # Free GL contexts at exit before MuJoCo's own EGL shutdown hook (registered earlier, so it
+                # runs later), even when close() is never called; otherwise EGL errors are printed at exit.
+                self._exit_hook = functools.partial(_close_renderers, self._renderers)
+                atexit.register(self._exit_hook)
         renderer.update_scene(self.data, camera=camera)
         return renderer.render().copy()
 
@@ -325,9 +344,10 @@ class ManipulationEnv(gym.Env):
         return self._render_camera("front", *self.render_size)
 
     def close(self) -> None:
-        for renderer in self._renderers.values():
-            renderer.close()
-        self._renderers.clear()
+        _close_renderers(self._renderers)
+        if self._exit_hook is not None:
+            atexit.unregister(self._exit_hook)
+            self._exit_hook = None
 
     # ------------------------------------------------------------------ diagnostics
     def tracking_error(self) -> tuple[float, float]:

@@ -82,8 +82,10 @@ class ScriptedExpert:
 
     # ------------------------------------------------------------------ building blocks
     def offset(self, scale: float = 1.0) -> np.ndarray:
-        """A random waypoint offset (3,) in metres, std ``WAYPOINT_POS * noise * scale``."""
-        return self.rng.normal(0.0, WAYPOINT_POS * self.noise * scale, 3)
+        """A random waypoint offset (3,) in metres: normal with std ``WAYPOINT_POS * noise * scale``,
+        truncated at 2 std so that rare tails do not turn a diverse demonstration into a failed one."""
+        std = WAYPOINT_POS * self.noise * scale
+        return np.clip(self.rng.normal(0.0, std, 3), -2 * std, 2 * std)
 
     def _action(self, jitter: bool = True) -> np.ndarray:
         pos, rot = self.cmd_pos, self.cmd_rot

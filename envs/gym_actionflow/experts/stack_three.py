@@ -39,8 +39,9 @@ class StackThreeExpert(ScriptedExpert):
         in_hand = object_in_tcp(env, held_id)
         base_pos, base_rot = env.body_pose(base_id)
         held_rot = env.body_pose(held_id)[1]
-        # Align the held cube's yaw with the base cube's (cubes are symmetric under quarter turns).
-        yaw = symmetric_yaw(yaw_of(held_rot), np.pi / 2, reference=yaw_of(base_rot))
+        # Align the held cube with the base cube, turning the wrist as little as possible: cubes are symmetric
+        # under quarter turns, so the base's yaw is taken modulo pi/2 nearest to the held cube's current yaw.
+        yaw = symmetric_yaw(yaw_of(base_rot), np.pi / 2, reference=yaw_of(held_rot))
         target_rot = yaw_matrix(yaw)
         target = base_pos + np.array([0, 0, CUBE_HALF[base] + CUBE_HALF[held] + 0.004])
         target[:2] += self.offset(0.5)[:2]
@@ -51,9 +52,19 @@ class StackThreeExpert(ScriptedExpert):
         yield from self.set_gripper(OPEN, steps=6)
         yield from self.move_to(at_pos + [0, 0, 0.07], at_rot, speed=0.015)
 
+    def stack(self, held: str, base: str, attempts: int = 3):
+        """Pick ``held`` and place it on ``base``; a missed grasp or a cube that fell is picked again."""
+        env = self.env
+        for _ in range(attempts):
+            yield from self.pick(held)
+            if not env.is_grasped(env.cube_geoms[held]):
+                yield from self.set_gripper(OPEN, steps=4)
+                continue
+            yield from self.place_on(held, base)
+            if env.stacked(held, base):
+                return
+
     def script(self):
-        yield from self.pick("cube_a")
-        yield from self.place_on("cube_a", "cube_b")
-        yield from self.pick("cube_c")
-        yield from self.place_on("cube_c", "cube_a")
+        yield from self.stack("cube_a", "cube_b")
+        yield from self.stack("cube_c", "cube_a")
         yield from self.hold(10)

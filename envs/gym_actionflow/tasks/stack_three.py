@@ -92,7 +92,7 @@ class StackThreeEnv(ManipulationEnv):
     def _entity_poses(self):
         return [self.body_pose(i) for i in self.cube_ids]
 
-    def _stacked(self, top: str, bottom: str) -> bool:
+    def stacked(self, top: str, bottom: str) -> bool:
         p_top = self.data.xpos[self.model.body(top).id]
         p_bottom = self.data.xpos[self.model.body(bottom).id]
         return bool(
@@ -104,7 +104,7 @@ class StackThreeEnv(ManipulationEnv):
         )
 
     def _check_success(self) -> bool:
-        return self._stacked("cube_a", "cube_b") and self._stacked("cube_c", "cube_a")
+        return self.stacked("cube_a", "cube_b") and self.stacked("cube_c", "cube_a")
 
     @staticmethod
     def cube_rotation(yaw: float) -> np.ndarray:
