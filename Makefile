@@ -8,7 +8,7 @@ PYTHON312 ?= $(shell for c in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python
 	/usr/bin/python3.12; do $$c -c 'import sys; assert sys.version_info[:2] == (3, 12)' 2>/dev/null \
 	&& { echo $$c; break; }; done)
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench bench-envs clean
 
 $(VENV)/.installed: pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "Python 3.12 not found: install it or run 'make PYTHON312=/path/to/python3.12'"; exit 1; }
@@ -28,6 +28,9 @@ test: lint
 
 bench: $(VENV)/.installed
 	$(PY) eval/bench_latency.py
+
+bench-envs: $(VENV)/.installed
+	$(PY) eval/bench_envs.py
 
 clean:
 	rm -rf $(VENV) outputs

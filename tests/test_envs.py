@@ -228,3 +228,29 @@ def test_mujoco_quaternions_never_leave_the_env():
     obs, _ = env.reset(seed=0)
     assert set(obs) == {"token_poses", "token_features", "agent_pos", "environment_state"}
     assert isinstance(env.unwrapped.model, mujoco.MjModel)
+
+
+def test_viewer_cli_writes_a_gif(tmp_path, capsys):
+    from gym_actionflow.__main__ import main
+
+    main(["StackThree", "--video", str(tmp_path / "stack.gif"), "--seed", "1"])
+    out = capsys.readouterr().out
+    assert "seed 1: success" in out
+    assert (tmp_path / "stack.gif").stat().st_size > 10_000
+
+
+def test_unreachable_target_neither_flings_the_arm_nor_traps_the_ik():
+    """Guards against IK branch jumps (the arm swinging off the table) and against getting stuck with the elbow
+    straight at the workspace edge: after an unreachable corner, a reachable pose is reached again."""
+    env = gym.make("gym_actionflow/StackThree-v0")
+    env.reset(seed=0)
+    down = np.diag([1.0, -1.0, -1.0])
+    corner = np.concatenate([pose9(np.array([0.35, 0.4, 0.25]), down), [-1.0]])
+    for _ in range(60):
+        obs, *_ = env.step(corner)
+        tcp = obs["token_poses"][0, :3]
+        assert tcp[2] > 0.0 and tcp[0] > -0.4, f"the arm left the workspace: TCP at {tcp}"
+    back = np.array([0.1, 0.0, 0.2])
+    for _ in range(60):
+        obs, *_ = env.step(np.concatenate([pose9(back, down), [-1.0]]))
+    assert np.linalg.norm(obs["token_poses"][0, :3] - back) < 1e-3

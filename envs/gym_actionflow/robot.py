@@ -26,6 +26,8 @@ TCP_SITE = "tcp"
 WRIST_CAMERA = "wrist"
 MAX_FINGER = 0.04
 """Each finger slides 0..4 cm, so the opening between the pads is 0..8 cm."""
+MAX_IK_STEP = 0.5
+"""Largest joint-space step (rad, Euclidean norm) of one IK iteration."""
 TCP_OFFSET = 0.1654 + 0.070
 """Distance from the flange frame (link 7) to the TCP, along its z axis: the middle of the finger pads."""
 
@@ -274,12 +276,16 @@ class PoseController:
         """
         m, d, r = self.model, self.scratch, self.refs
         q = np.clip(np.asarray(q_init, dtype=np.float64).copy(), r.lower, r.upper)
+        best_q, best_cost = q, np.inf
         for it in range(self.iterations):
             d.qpos[r.qpos] = q
             mujoco.mj_kinematics(m, d)
             x = d.site_xpos[r.tcp]
             xr = d.site_xmat[r.tcp].reshape(3, 3)
             err = np.concatenate([pos - x, xr @ rotation_log(xr.T @ rot)])
+            cost = err[:3] @ err[:3] + 0.01 * err[3:] @ err[3:]
+            if cost < best_cost:
+                best_q, best_cost = q, cost
             if (
                 it > 0
                 and err[:3] @ err[:3] < self.tolerance**2
@@ -296,5 +302,8 @@ class PoseController:
             if it == 0 and self.rest is not None:
                 null = np.eye(7) - jac.T @ jjt_inv @ jac
                 dq += null @ (0.05 * (self.rest - q))
+            # Small steps: near singular or unreachable targets a full DLS step can jump between IK branches.
+            dq *= min(1.0, MAX_IK_STEP / (np.linalg.norm(dq) + 1e-12))
             q = np.clip(q + dq, r.lower, r.upper)
-        return q
+        # Unreachable targets: keep the closest pose found rather than wherever the last iterate landed.
+        return best_q
