@@ -240,8 +240,8 @@ def test_viewer_cli_writes_a_gif(tmp_path, capsys):
 
 
 def test_unreachable_target_neither_flings_the_arm_nor_traps_the_ik():
-    """Guards against IK branch jumps (the arm swinging off the table) and against getting stuck with the elbow
-    straight at the workspace edge: after an unreachable corner, a reachable pose is reached again."""
+    """Guards against IK branch jumps (the arm swinging off the table) and against getting stuck with the
+    elbow straight at the workspace edge: after an unreachable corner, a reachable pose is reached again."""
     env = gym.make("gym_actionflow/StackThree-v0")
     env.reset(seed=0)
     down = np.diag([1.0, -1.0, -1.0])
