@@ -166,7 +166,7 @@ class ManipulationEnv(gym.Env):
             friction=(1.0, 0.005, 0.0001),
         )
         world.add_light(pos=(0, 0, 2.0), dir=(0, 0, -1), diffuse=(0.6, 0.6, 0.6), castshadow=False)
-        world.add_camera(name="front", pos=(0.95, 0.0, 0.65), xyaxes=(0, 1, 0, -0.55, 0, 0.83), fovy=50.0)
+        world.add_camera(name="front", pos=(0.62, 0.0, 0.52), xyaxes=(0, 1, 0, -0.54, 0, 0.84), fovy=55.0)
         add_panda(spec, ROBOT_BASE)
         return spec
 
