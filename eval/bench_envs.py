@@ -51,17 +51,9 @@ def time_steps(env_id: str, obs_mode: str, steps: int) -> float:
 def run_episode(args: tuple[str, str, float, int]) -> tuple[bool, int]:
     env_id, variant, noise, seed = args
     env = gym.make(env_id, variant=variant)
-    expert = gym_actionflow.make_expert(env, noise=noise, seed=seed)
-    obs, info = env.reset(seed=seed)
-    expert.reset()
-    steps = 0
-    while True:
-        obs, _, terminated, truncated, info = env.step(expert.act(obs))
-        steps += 1
-        if terminated or truncated:
-            break
+    episode = gym_actionflow.run_episode(env, gym_actionflow.make_expert(env, noise=noise, seed=seed), seed)
     env.close()
-    return bool(info["is_success"]), steps
+    return episode.success, episode.steps
 
 
 def main() -> None:

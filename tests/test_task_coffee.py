@@ -22,15 +22,9 @@ from gym_actionflow.tasks.coffee import (
 
 def run_expert(variant: str, seed: int) -> bool:
     env = gym.make("gym_actionflow/Coffee-v0", variant=variant)
-    expert = gym_actionflow.make_expert(env)
-    obs, info = env.reset(seed=seed)
-    expert.reset()
-    for _ in range(300):
-        obs, _, terminated, truncated, info = env.step(expert.act(obs))
-        if terminated or truncated:
-            break
+    episode = gym_actionflow.run_episode(env, gym_actionflow.make_expert(env), seed)
     env.close()
-    return info["is_success"]
+    return episode.success
 
 
 @pytest.mark.parametrize("variant", ["D0", "D1"])

@@ -13,15 +13,9 @@ from gym_actionflow.tasks.stack_three import CUBE_HALF, StackThreeEnv
 
 def run_expert(variant: str, seed: int) -> bool:
     env = gym.make("gym_actionflow/StackThree-v0", variant=variant)
-    expert = gym_actionflow.make_expert(env)
-    obs, info = env.reset(seed=seed)
-    expert.reset()
-    for _ in range(400):
-        obs, _, terminated, truncated, info = env.step(expert.act(obs))
-        if terminated or truncated:
-            break
+    episode = gym_actionflow.run_episode(env, gym_actionflow.make_expert(env), seed)
     env.close()
-    return info["is_success"]
+    return episode.success
 
 
 @pytest.mark.parametrize("variant", ["D0", "D1"])

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 from gym_actionflow.base import HOME_POS, HOME_ROT, ROBOT_BASE
-from gym_actionflow.geometry import pose9
+from gym_actionflow.geometry import pose9, yaw_quat
 from gym_actionflow.tasks.three_piece_assembly import (
     BASE_D0,
     PIECE1_HEIGHT,
@@ -18,7 +18,6 @@ from gym_actionflow.tasks.three_piece_assembly import (
     SLAB_HEIGHT,
     Z_TOL,
     ThreePieceAssemblyEnv,
-    yaw_quat,
 )
 
 ENV_ID = "gym_actionflow/ThreePieceAssembly-v0"
@@ -54,14 +53,9 @@ def test_expert_solves_fixed_seeds(variant):
     env = gym.make(ENV_ID, variant=variant)
     expert = gym_actionflow.make_expert(env, noise=0.0, seed=0)
     for seed in (0, 1, 2):
-        obs, info = env.reset(seed=seed)
-        expert.reset(seed=seed)
-        for _ in range(500):
-            obs, reward, terminated, truncated, info = env.step(expert.act(obs))
-            if terminated or truncated:
-                break
-        assert info["is_success"], f"{variant} seed {seed}: expert failed"
-        assert terminated and reward == 1.0
+        episode = gym_actionflow.run_episode(env, expert, seed, expert_seed=seed)
+        assert episode.success, f"{variant} seed {seed}: expert failed"
+        assert episode.terminated and episode.last_reward == 1.0
     env.close()
 
 

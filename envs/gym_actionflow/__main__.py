@@ -45,19 +45,11 @@ def main(argv: list[str] | None = None) -> None:
     env = gym.make(task.env_id, **kwargs)
     expert = gym_actionflow.make_expert(env, noise=args.noise, seed=args.seed)
     frames: list[np.ndarray] = []
+    on_frame = frames.append if args.video is not None else None
     for i in range(args.episodes):
-        obs, info = env.reset(seed=args.seed + i)
-        expert.reset()
-        steps = 0
-        while True:
-            if args.video is not None:
-                frames.append(env.render())
-            obs, _, terminated, truncated, info = env.step(expert.act(obs))
-            steps += 1
-            if terminated or truncated:
-                break
-        outcome = "success" if info["is_success"] else "failure"
-        print(f"{task.env_id} seed {args.seed + i}: {outcome} after {steps} steps")
+        episode = gym_actionflow.run_episode(env, expert, args.seed + i, on_frame=on_frame)
+        outcome = "success" if episode.success else "failure"
+        print(f"{task.env_id} seed {args.seed + i}: {outcome} after {episode.steps} steps")
     if args.video is not None:
         import imageio.v2 as imageio
 

@@ -19,6 +19,8 @@ __all__ = [
     "rotation_angle",
     "rotation_log",
     "yaw_matrix",
+    "yaw_of",
+    "yaw_quat",
 ]
 
 
@@ -68,6 +70,16 @@ def matrix_to_quat(r: np.ndarray) -> np.ndarray:
 def yaw_matrix(yaw: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def yaw_quat(yaw: float) -> np.ndarray:
+    """MuJoCo quaternion (w, x, y, z) of a rotation by ``yaw`` about the world z axis."""
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+def yaw_of(rot: np.ndarray) -> float:
+    """Heading of a rotation matrix: the angle of its first column projected on the xy plane."""
+    return float(np.arctan2(rot[1, 0], rot[0, 0]))
 
 
 def axis_angle_matrix(axis_angle: np.ndarray) -> np.ndarray:

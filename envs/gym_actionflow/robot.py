@@ -92,16 +92,9 @@ def add_panda(spec: mujoco.MjSpec, base_pos: tuple[float, float, float]) -> None
             **kwargs,
         )
 
-    def collision_capsule(body: mujoco.MjsBody, a, b, radius: float) -> None:
-        body.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-            fromto=(*a, *b),
-            size=(radius, 0, 0),
-            contype=2,
-            conaffinity=1,
-            group=3,
-            density=0,
-        )
+    def collision(body: mujoco.MjsBody, geom_type: mujoco.mjtGeom, **kwargs) -> None:
+        """A massless collision geom of the robot (contype 2: the robot does not collide with itself)."""
+        body.add_geom(type=geom_type, contype=2, conaffinity=1, group=3, density=0, **kwargs)
 
     base = spec.worldbody.add_body(name="panda_link0", pos=base_pos)
     visual(base, "panda_link0")
@@ -125,20 +118,12 @@ def add_panda(spec: mujoco.MjSpec, base_pos: tuple[float, float, float]) -> None
 
     link7 = parent
     # Coarse collision volumes for the forearm, wrist and hand, so the arm cannot sweep through the scene.
-    collision_capsule(link7, (0, 0, 0.06), (0, 0, 0.11), 0.05)
+    collision(link7, mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=(0, 0, 0.06, 0, 0, 0.11), size=(0.05, 0, 0))
     hand_quat = _euler_quat((0, 0, -np.pi / 4))
     hand = link7.add_body(name="panda_hand", pos=(0, 0, 0.107), quat=hand_quat, gravcomp=1.0)
     hand.mass, hand.inertia, hand.explicitinertial = 0.81909, (0.003, 0.003, 0.002), True
     visual(hand, "panda_hand")
-    hand.add_geom(
-        type=mujoco.mjtGeom.mjGEOM_BOX,
-        pos=(0, 0, 0.025),
-        size=(0.03, 0.1, 0.03),
-        contype=2,
-        conaffinity=1,
-        group=3,
-        density=0,
-    )
+    collision(hand, mujoco.mjtGeom.mjGEOM_BOX, pos=(0, 0, 0.025), size=(0.03, 0.1, 0.03))
     hand.add_site(
         name=TCP_SITE, pos=(0, 0, TCP_OFFSET - 0.107), size=(0.004, 0, 0), group=4, rgba=(1, 0, 0, 1)
     )
@@ -163,29 +148,18 @@ def add_panda(spec: mujoco.MjSpec, base_pos: tuple[float, float, float]) -> None
         )
         visual(finger, "panda_finger", quat=(1, 0, 0, 0) if side > 0 else (0, 0, 0, 1), material="panda_dark")
         # Pad: inner face at y = 0 of the finger frame (fingers touch when both joints are 0).
-        finger.add_geom(
+        collision(
+            finger,
+            mujoco.mjtGeom.mjGEOM_BOX,
             name=f"{joint}_pad",
-            type=mujoco.mjtGeom.mjGEOM_BOX,
             pos=(0, side * 0.006, 0.07),
             size=(0.009, 0.006, 0.018),
-            contype=2,
-            conaffinity=1,
-            group=3,
-            density=0,
             friction=(1.5, 0.02, 0.001),
             condim=4,
             solref=(0.004, 1.0),
             solimp=(0.95, 0.99, 0.001, 0.5, 2),
         )
-        finger.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            pos=(0, side * 0.012, 0.035),
-            size=(0.009, 0.008, 0.02),
-            contype=2,
-            conaffinity=1,
-            group=3,
-            density=0,
-        )
+        collision(finger, mujoco.mjtGeom.mjGEOM_BOX, pos=(0, side * 0.012, 0.035), size=(0.009, 0.008, 0.02))
 
     for joint, kp, force in zip(ARM_JOINTS, _KP, _FORCE, strict=True):
         act = spec.add_actuator(name=joint, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from gym_actionflow.experts.base import ScriptedExpert
+from gym_actionflow.experts.base import Episode, ScriptedExpert, run_episode
 from gym_actionflow.registry import TASKS, load
+
+__all__ = ["Episode", "ScriptedExpert", "make_expert", "run_episode"]
 
 
 def make_expert(env: gym.Env, noise: float = 0.0, seed: int | None = None) -> ScriptedExpert:

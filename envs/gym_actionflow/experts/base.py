@@ -14,7 +14,8 @@ per-step jitter on the emitted pose, both scaled by ``noise`` (0 gives a determi
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
@@ -132,6 +133,38 @@ class ScriptedExpert:
     def set_gripper(self, command: float, steps: int = 6) -> Iterator[np.ndarray]:
         self.grip = command
         yield from self.hold(steps)
+
+
+@dataclass(frozen=True)
+class Episode:
+    """Outcome of one expert episode."""
+
+    success: bool
+    steps: int
+    terminated: bool
+    last_reward: float
+
+
+def run_episode(
+    env: gym.Env,
+    expert: ScriptedExpert,
+    seed: int,
+    expert_seed: int | None = None,
+    on_frame: Callable[[np.ndarray], None] | None = None,
+) -> Episode:
+    """Reset ``env`` with ``seed`` and run ``expert`` until the episode terminates or is truncated.
+
+    ``env`` must come from ``gym.make``, whose time limit ends every episode. ``on_frame`` receives
+    ``env.render()`` before each step (for videos)."""
+    obs, info = env.reset(seed=seed)
+    expert.reset(seed=expert_seed)
+    steps, terminated, truncated, reward = 0, False, False, 0.0
+    while not (terminated or truncated):
+        if on_frame is not None:
+            on_frame(env.render())
+        obs, reward, terminated, truncated, info = env.step(expert.act(obs))
+        steps += 1
+    return Episode(bool(info["is_success"]), steps, bool(terminated), float(reward))
 
 
 def object_in_tcp(env: ManipulationEnv, body_id: int) -> tuple[np.ndarray, np.ndarray]:

@@ -13,12 +13,8 @@ from gym_actionflow.experts.base import (
     tcp_for_object,
     top_down,
 )
-from gym_actionflow.geometry import yaw_matrix
+from gym_actionflow.geometry import yaw_matrix, yaw_of
 from gym_actionflow.tasks.stack_three import CUBE_HALF
-
-
-def yaw_of(rot: np.ndarray) -> float:
-    return float(np.arctan2(rot[1, 0], rot[0, 0]))
 
 
 class StackThreeExpert(ScriptedExpert):

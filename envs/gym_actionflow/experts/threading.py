@@ -6,6 +6,7 @@ import numpy as np
 
 from gym_actionflow.base import ROBOT_BASE
 from gym_actionflow.experts.base import CLOSE, ScriptedExpert, object_in_tcp, tcp_for_object, top_down
+from gym_actionflow.geometry import yaw_of
 from gym_actionflow.tasks.threading import NEEDLE_TIP, RING_HEIGHT
 
 REACH = 0.72
@@ -13,10 +14,6 @@ REACH = 0.72
 arm's top-down reach at that height is about 0.79 m)."""
 TRAVEL_HEIGHT = RING_HEIGHT + 0.06
 """The needle is carried at this height (clear of the ring) between the grasp and the ring."""
-
-
-def yaw_of(rot: np.ndarray) -> float:
-    return float(np.arctan2(rot[1, 0], rot[0, 0]))
 
 
 def wrap(angle: float) -> float:

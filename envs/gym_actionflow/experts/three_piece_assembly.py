@@ -14,7 +14,7 @@ from gym_actionflow.experts.base import (
     tcp_for_object,
     top_down,
 )
-from gym_actionflow.geometry import yaw_matrix
+from gym_actionflow.geometry import yaw_matrix, yaw_of
 from gym_actionflow.tasks.three_piece_assembly import PIECE1_HEIGHT, PIECE2_HEIGHT, SLAB_HEIGHT
 
 GRASP_DEPTH = 0.025
@@ -36,10 +36,6 @@ FINE_JITTER = 0.3
 """Scale of the per-step action jitter while a piece is aligned, inserted and released (the rest of the
 motion keeps the full jitter): at noise 1 the full jitter moves the hand by up to a centimetre, more than the
 clearance."""
-
-
-def yaw_of(rot: np.ndarray) -> float:
-    return float(np.arctan2(rot[1, 0], rot[0, 0]))
 
 
 class ThreePieceAssemblyExpert(ScriptedExpert):

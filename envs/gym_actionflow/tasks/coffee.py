@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 
 from gym_actionflow.base import TABLE_TOP, ManipulationEnv
-from gym_actionflow.geometry import yaw_matrix
+from gym_actionflow.geometry import yaw_matrix, yaw_quat
 from gym_actionflow.placement import Region
 
 # ---------------------------------------------------------------- pod (free body)
@@ -64,10 +64,6 @@ POD_REGION = {
 """MimicGen's Coffee_D0 / Coffee_D1 placement bounds (machine footprint centre and yaw, pod position)."""
 
 
-def _quat_z(yaw: float) -> np.ndarray:
-    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
-
-
 def _add_machine(spec: mujoco.MjSpec) -> None:
     box = mujoco.mjtGeom.mjGEOM_BOX
     dark, silver, red = (0.15, 0.15, 0.16, 1), (0.75, 0.75, 0.77, 1), (0.75, 0.12, 0.1, 1)
@@ -92,7 +88,7 @@ def _add_machine(spec: mujoco.MjSpec) -> None:
         a = 2 * np.pi * i / HOLDER_WALLS
         r = HOLDER_INNER_RADIUS + thick
         machine.add_geom(name=f"holder_wall{i}", type=box, size=(thick, half_len, 0.5 * HOLDER_DEPTH),
-                         pos=(r * np.cos(a), r * np.sin(a), 0.5 * HOLDER_DEPTH), quat=_quat_z(a), rgba=red,
+                         pos=(r * np.cos(a), r * np.sin(a), 0.5 * HOLDER_DEPTH), quat=yaw_quat(a), rgba=red,
                          friction=friction)
     lid = machine.add_body(name="lid", pos=(0.0, HINGE_Y, HINGE_Z))
     lid.add_joint(name="lid_hinge", type=mujoco.mjtJoint.mjJNT_HINGE, axis=(1, 0, 0), range=(0.0, LID_OPEN),
@@ -179,14 +175,14 @@ class CoffeeEnv(ManipulationEnv):
         self.place_machine(holder_xy, yaw)
         pod_xy, pod_yaw = POD_REGION[self.variant].sample(rng)
         self.set_free_pose("pod_joint", np.array([pod_xy[0], pod_xy[1], TABLE_TOP + POD_HALF_HEIGHT]),
-                           _quat_z(pod_yaw))
+                           yaw_quat(pod_yaw))
         self.data.qpos[self.lid_qpos] = LID_OPEN
 
     def place_machine(self, holder_xy, yaw: float) -> None:
         """Move the (static) machine so the holder axis is at ``holder_xy`` with the given yaw; call
         mj_forward (or reset) afterwards."""
         self.model.body_pos[self.machine_id] = (holder_xy[0], holder_xy[1], TABLE_TOP + HOLDER_FLOOR_Z)
-        self.model.body_quat[self.machine_id] = _quat_z(yaw)
+        self.model.body_quat[self.machine_id] = yaw_quat(yaw)
 
     def _entity_poses(self):
         return [self.body_pose(self.pod_id), self.body_pose(self.machine_id), self.body_pose(self.lid_id)]

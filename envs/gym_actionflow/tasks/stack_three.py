@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 
 from gym_actionflow.base import TABLE_TOP, ManipulationEnv
-from gym_actionflow.geometry import yaw_matrix
+from gym_actionflow.geometry import yaw_quat
 from gym_actionflow.placement import sample_separated, square
 
 CUBE_HALF = {"cube_a": 0.02, "cube_b": 0.025, "cube_c": 0.02}
@@ -76,7 +76,7 @@ class StackThreeEnv(ManipulationEnv):
             add_box_object(spec, name, (half, half, half), CUBE_RGBA[name])
 
     def _cache_refs(self) -> None:
-        self.cube_ids = [self.model.body(n).id for n in self.entity_names]
+        self.cube_ids = {n: self.model.body(n).id for n in self.entity_names}
         self.cube_geoms = {n: self.geoms_of(n) for n in self.entity_names}
         self.table_geoms = {self.model.geom("table").id}
 
@@ -86,15 +86,15 @@ class StackThreeEnv(ManipulationEnv):
         radii = [CUBE_HALF[n] * np.sqrt(2) + 0.01 for n in names]
         placed = sample_separated(rng, [square(half)] * 3, radii)
         for name, (xy, yaw) in zip(names, placed, strict=True):
-            quat = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
-            self.set_free_pose(f"{name}_joint", np.array([xy[0], xy[1], TABLE_TOP + CUBE_HALF[name]]), quat)
+            pos = np.array([xy[0], xy[1], TABLE_TOP + CUBE_HALF[name]])
+            self.set_free_pose(f"{name}_joint", pos, yaw_quat(yaw))
 
     def _entity_poses(self):
-        return [self.body_pose(i) for i in self.cube_ids]
+        return [self.body_pose(i) for i in self.cube_ids.values()]
 
     def stacked(self, top: str, bottom: str) -> bool:
-        p_top = self.data.xpos[self.model.body(top).id]
-        p_bottom = self.data.xpos[self.model.body(bottom).id]
+        p_top = self.data.xpos[self.cube_ids[top]]
+        p_bottom = self.data.xpos[self.cube_ids[bottom]]
         return bool(
             self.touching(self.cube_geoms[top], self.cube_geoms[bottom])
             and p_top[2] > p_bottom[2] + 0.5 * CUBE_HALF[bottom]
@@ -105,7 +105,3 @@ class StackThreeEnv(ManipulationEnv):
 
     def _check_success(self) -> bool:
         return self.stacked("cube_a", "cube_b") and self.stacked("cube_c", "cube_a")
-
-    @staticmethod
-    def cube_rotation(yaw: float) -> np.ndarray:
-        return yaw_matrix(yaw)

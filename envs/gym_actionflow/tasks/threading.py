@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 
 from gym_actionflow.base import TABLE_TOP, ManipulationEnv
+from gym_actionflow.geometry import yaw_quat
 
 # Needle (free body). Its frame: origin at the centre of the handle, x axis along the bar towards the tip,
 # z axis up when it lies on the table. Sizes as MimicGen's NeedleObject: a 4 cm cube handle and a 1 cm thick,
@@ -91,10 +92,6 @@ def add_tripod(spec: mujoco.MjSpec, name: str = "tripod") -> mujoco.MjsBody:
     return body
 
 
-def _yaw_quat(yaw: float) -> np.ndarray:
-    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
-
-
 class ThreadingEnv(ManipulationEnv):
     """Thread a needle: grasp it by its handle and pass its tip through the small ring of a tripod.
 
@@ -159,11 +156,11 @@ class ThreadingEnv(ManipulationEnv):
         tripod_xy = np.array([rng.uniform(*TRIPOD_X[v]), rng.uniform(*TRIPOD_Y[v])])
         tripod_yaw = rng.uniform(*TRIPOD_YAW[v])
         self.model.body_pos[self.tripod_id] = (*tripod_xy, TABLE_TOP + RING_HEIGHT)
-        self.model.body_quat[self.tripod_id] = _yaw_quat(tripod_yaw)
+        self.model.body_quat[self.tripod_id] = yaw_quat(tripod_yaw)
         centre = np.array([rng.uniform(*NEEDLE_X[v]), rng.uniform(*NEEDLE_Y[v])])
         yaw = rng.uniform(*NEEDLE_YAW[v])
         origin = centre - NEEDLE_CENTRE * np.array([np.cos(yaw), np.sin(yaw)])
-        self.set_free_pose("needle_joint", np.array([*origin, TABLE_TOP + HANDLE_HALF]), _yaw_quat(yaw))
+        self.set_free_pose("needle_joint", np.array([*origin, TABLE_TOP + HANDLE_HALF]), yaw_quat(yaw))
 
     def _entity_poses(self):
         return [self.body_pose(self.needle_id), self.body_pose(self.tripod_id)]

@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 
 from gym_actionflow.base import ROBOT_BASE, TABLE_TOP, ManipulationEnv
+from gym_actionflow.geometry import yaw_quat
 from gym_actionflow.placement import Region, square
 
 # ---------------------------------------------------------------- geometry (metres, half sizes unless noted)
@@ -72,10 +73,6 @@ _FRICTION = (1.0, 0.005, 0.0001)
 def _box(body: mujoco.MjsBody, name: str, half, pos, rgba, density: float = DENSITY) -> None:
     body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=half, pos=pos, rgba=rgba, density=density,
                   friction=_FRICTION, condim=4)
-
-
-def yaw_quat(yaw: float) -> np.ndarray:
-    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
 
 
 def sample_reachable(
