@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 SPECS = [(task.env_id, variant) for task in gym_actionflow.TASKS for variant in task.variants]
 IDS = [task.env_id for task in gym_actionflow.TASKS]
+BY_ID = {task.env_id: task for task in gym_actionflow.TASKS}
 
 
 def hold_action(obs: dict, grip: float = -1.0) -> np.ndarray:
@@ -25,7 +26,7 @@ def hold_action(obs: dict, grip: float = -1.0) -> np.ndarray:
 
 @pytest.mark.parametrize(("env_id", "variant"), SPECS, ids=[f"{i}-{v}" for i, v in SPECS])
 def test_check_env(env_id, variant):
-    env = gym.make(env_id, variant=variant)
+    env = gym.make(env_id, **BY_ID[env_id].kwargs(variant))
     check_env(env.unwrapped, skip_render_check=False)
     env.close()
 
@@ -54,7 +55,10 @@ def test_observation_schema(env_id):
     # Token 0 is the EEF at the home pose; agent_pos and environment_state are views of the tokens.
     np.testing.assert_allclose(obs["token_poses"][0, :3], HOME_POS, atol=2e-3)
     np.testing.assert_array_equal(obs["agent_pos"][:9], obs["token_poses"][0])
-    assert obs["agent_pos"][9] == pytest.approx(0.08, abs=2e-3)  # gripper open
+    if env_id == "gym_actionflow/Lightbulb-v0":  # starts with the bulb held: gripper closed on it
+        assert 0.0 < obs["agent_pos"][9] < 0.08
+    else:
+        assert obs["agent_pos"][9] == pytest.approx(0.08, abs=2e-3)  # gripper open
     assert obs["token_features"][0, n] == obs["agent_pos"][9]
     np.testing.assert_array_equal(obs["environment_state"], obs["token_poses"][1:].reshape(-1))
     assert info["is_success"] is False
@@ -66,7 +70,8 @@ def test_same_seed_same_rollout_other_seed_other_layout(env_id):
     """Guards against hidden randomness (global RNGs, unseeded samplers): datasets must be reproducible."""
 
     def rollout(seed: int) -> list[np.ndarray]:
-        env = gym.make(env_id, variant="D1")
+        task = BY_ID[env_id]
+        env = gym.make(env_id, **task.kwargs(task.variants[-1]))
         expert = gym_actionflow.make_expert(env, noise=1.0, seed=seed)
         obs, _ = env.reset(seed=seed)
         expert.reset()

@@ -25,7 +25,9 @@ def main(argv: list[str] | None = None) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("task", choices=names)
-    parser.add_argument("--variant", default=None, help="initial-state distribution, e.g. D0 or D1")
+    parser.add_argument(
+        "--variant", default=None, help="initial-state distribution, e.g. D0, D1 (MugHanging: train or test)"
+    )
     parser.add_argument("--episodes", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0, help="first seed; episode i uses seed + i")
     parser.add_argument("--noise", type=float, default=0.0, help="expert noise (0: deterministic)")
@@ -41,7 +43,9 @@ def main(argv: list[str] | None = None) -> None:
             parser.error("--video *.mp4 needs `pip install imageio-ffmpeg`; or write a .gif instead")
 
     task = next(t for t in gym_actionflow.TASKS if t.name == args.task)
-    kwargs = {} if args.variant is None else {"variant": args.variant}
+    if args.variant is not None and args.variant not in task.variants:
+        parser.error(f"--variant {args.variant}: {task.name} has variants {', '.join(task.variants)}")
+    kwargs = {} if args.variant is None else task.kwargs(args.variant)
     env = gym.make(task.env_id, **kwargs)
     expert = gym_actionflow.make_expert(env, noise=args.noise, seed=args.seed)
     frames: list[np.ndarray] = []

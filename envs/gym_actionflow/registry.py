@@ -18,10 +18,19 @@ class TaskSpec:
     """``module:ExpertClass`` of its scripted expert."""
     max_episode_steps: int
     variants: tuple[str, ...]
+    """Initial-state distributions; the first is the default."""
+    variant_kwarg: str = "variant"
+    """The ``gym.make`` keyword that selects a variant (``layout`` for MugHanging)."""
 
     @property
     def env_id(self) -> str:
         return f"gym_actionflow/{self.name}-v0"
+
+    def kwargs(self, variant: str) -> dict[str, str]:
+        """``gym.make`` keyword arguments selecting ``variant``."""
+        if variant not in self.variants:
+            raise ValueError(f"{self.name} has no variant {variant!r}; expected one of {self.variants}")
+        return {self.variant_kwarg: variant}
 
 
 def load(entry_point: str) -> type:
@@ -57,5 +66,20 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.threading:ThreadingExpert",
         400,
         ("D0", "D1"),
+    ),
+    TaskSpec(
+        "Lightbulb",
+        "gym_actionflow.tasks.lightbulb:LightbulbEnv",
+        "gym_actionflow.experts.lightbulb:LightbulbExpert",
+        300,
+        ("D0",),
+    ),
+    TaskSpec(
+        "MugHanging",
+        "gym_actionflow.tasks.mug_hanging:MugHangingEnv",
+        "gym_actionflow.experts.mug_hanging:MugHangingExpert",
+        400,
+        ("train", "test"),
+        variant_kwarg="layout",
     ),
 )
