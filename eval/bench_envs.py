@@ -48,9 +48,27 @@ def time_steps(env_id: str, obs_mode: str, steps: int) -> float:
     return total / count
 
 
+def time_point_cloud(resets: int) -> list[tuple[str, float, float]]:
+    """MugHanging with ``hanger_obs="point_cloud"``: (layout, mean reset s, mean cloud s) over ``resets``."""
+    rows = []
+    for layout in ("train", "test"):
+        env = gym.make("gym_actionflow/MugHanging-v0", layout=layout, hanger_obs="point_cloud")
+        env.reset(seed=0)  # the first reset also creates the depth renderer
+        total = cloud = 0.0
+        for seed in range(1, resets + 1):
+            start = time.perf_counter()
+            env.reset(seed=seed)
+            total += time.perf_counter() - start
+            cloud += env.unwrapped.cloud_seconds
+        env.close()
+        rows.append((layout, total / resets, cloud / resets))
+    return rows
+
+
 def run_episode(args: tuple[str, str, float, int]) -> tuple[bool, int]:
     env_id, variant, noise, seed = args
-    env = gym.make(env_id, variant=variant)
+    task = next(t for t in gym_actionflow.TASKS if t.env_id == env_id)
+    env = gym.make(env_id, **task.kwargs(variant))
     episode = gym_actionflow.run_episode(env, gym_actionflow.make_expert(env, noise=noise, seed=seed), seed)
     env.close()
     return episode.success, episode.steps
@@ -79,7 +97,9 @@ def main() -> None:
         env_id = tasks[name].env_id
         state = time_steps(env_id, "state", args.speed_steps)
         pixels = time_steps(env_id, "pixels", max(args.speed_steps // 4, 100))
-        speed_rows.append((name, 1.0 / state, 1.0 / pixels, 1000 * (pixels - state)))
+        size = gym.make(env_id).unwrapped.image_size
+        speed_rows.append((name, 1.0 / state, 1.0 / pixels, 1000 * (pixels - state), size))
+    cloud_rows = time_point_cloud(20) if "MugHanging" in args.tasks else []
 
     jobs = [
         (tasks[n].env_id, v, noise) for n in args.tasks for v in tasks[n].variants for noise in args.noise
@@ -98,10 +118,22 @@ def main() -> None:
         f"`python eval/bench_envs.py --episodes {args.episodes}` on "
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores; speed in one process.",
         "",
-        "| task | steps/s (state) | steps/s (state + 84x84 wrist RGB) | camera ms/step |",
-        "|---|---|---|---|",
-        *(f"| {n} | {s:.0f} | {p:.0f} | {ms:.1f} |" for n, s, p, ms in speed_rows),
+        "| task | steps/s (state) | steps/s (state + wrist RGB) | wrist image | camera ms/step |",
+        "|---|---|---|---|---|",
+        *(f"| {n} | {s:.0f} | {p:.0f} | {sz}x{sz} | {ms:.1f} |" for n, s, p, ms, sz in speed_rows),
         "",
+        *(
+            [
+                "MugHanging point-cloud observation (7 depth views, rendered once per reset), 20 resets:",
+                "",
+                "| layout | reset with point cloud, s | of which the point cloud, s |",
+                "|---|---|---|",
+                *(f"| {lay} | {r:.3f} | {c:.3f} |" for lay, r, c in cloud_rows),
+                "",
+            ]
+            if cloud_rows
+            else []
+        ),
         f"Scripted expert success over seeds 0..{args.episodes - 1}:",
         "",
         "| task | variant | noise | success | mean episode length |",

@@ -1,0 +1,180 @@
+"""Scripted expert for Mug Hanging: grasp the mug, line the handle up with the peg, slide it on, let go.
+
+Poses are read from the observation passed to ``act`` (EEF, mug and, with ``hanger_obs="pose"``, the hanger
+token). With ``hanger_obs="point_cloud"`` the hanger token is only the cloud's centroid (identity rotation),
+which does not tell which way the peg points, so the expert then reads the hanger's true pose from the
+simulator (``env.unwrapped``): it is a demonstrator, and the recorded observations stay the point cloud.
+Without an observation (``act()``) everything is read from the simulator.
+
+The mug is grasped top-down around its body, 1.7 cm below the rim, the fingers closing across it (along the
+mug's y axis, clear of the handle): with the position-servo fingers a rim grasp (one pad inside, one
+outside the 4 mm wall) squeezes with under 1 N, while the 6.4 cm body gets about 10 N per finger. The mug is
+carried upright, turned so that the handle's opening faces along the peg, brought 5 cm beyond the peg's tip
+on its axis, slid down the peg to 7 cm from the pole axis, lowered 1 cm and released; the hand then lifts.
+
+``noise`` scales the waypoint offsets (grasp point, the insertion line across the peg, the seat along it)
+and the per-step jitter; the jitter is cut to ``PRECISE_JITTER`` (30 %) while descending around the mug and
+while the handle is on or near the peg. A missed grasp or a fallen mug is retried (``retries``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gym_actionflow.base import TABLE_TOP
+from gym_actionflow.experts.base import (
+    CLOSE,
+    JITTER_POS,
+    JITTER_ROT,
+    OPEN,
+    ScriptedExpert,
+    symmetric_yaw,
+    tcp_for_object,
+    top_down,
+)
+from gym_actionflow.geometry import axis_angle_matrix, pose9, pose9_to_rt, yaw_of
+from gym_actionflow.tasks.mug_hanging import (
+    HOLE_CENTER,
+    MUG_HEIGHT,
+    PEG_DIRECTION,
+    PEG_ROOT,
+    PEG_TIP,
+    MugHangingEnv,
+)
+
+GRASP_BELOW_RIM = 0.017
+"""The TCP (middle of the finger pads) closes 1.7 cm below the rim, so the 3.6 cm pads reach 1 mm above it."""
+APPROACH = 0.05
+"""Before the slide the handle's opening is centred on the peg's axis, this far beyond the tip (m)."""
+SEAT = 0.07
+"""The slide ends with the opening this far along the peg from the pole axis (the peg is 0.12 m long)."""
+DROP = 0.010
+"""The mug is lowered by 1 cm before release, so its handle drops only ~4 mm onto the peg."""
+LIFT = 0.06
+"""The mug is brought over the insertion start from this height above it."""
+PRECISE_JITTER = 0.3
+"""Share of the per-step jitter kept in the precise phases: the descent around the mug (8 mm clearance per
+side) and the slide of the handle onto the peg (~6 mm clearance)."""
+LIFTED = 0.05
+"""The mug's bottom this far above the table (m) counts as lifted (a hung mug's is about 0.14 m up)."""
+
+
+def wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+class MugHangingExpert(ScriptedExpert):
+    env: MugHangingEnv
+    retries = 2
+    """A missed grasp (the mug is not lifted) or a mug that fell off the peg is tried again, up to twice."""
+
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self.obs = None
+        self.jitter_scale = 1.0
+
+    def act(self, observation=None) -> np.ndarray:
+        self.obs = observation
+        return super().act(observation)
+
+    def _action(self, jitter: bool = True) -> np.ndarray:
+        pos, rot = self.cmd_pos, self.cmd_rot
+        scale = self.noise * self.jitter_scale
+        if jitter and scale > 0:
+            pos = pos + self.rng.normal(0.0, JITTER_POS * scale, 3)
+            rot = rot @ axis_angle_matrix(self.rng.normal(0.0, JITTER_ROT * scale, 3))
+        return np.concatenate([pose9(pos, rot), [self.grip]]).astype(np.float32)
+
+    # ------------------------------------------------------------------ perception
+    def _token(self, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+        if self.obs is None:
+            return None
+        rot, pos = pose9_to_rt(self.obs["token_poses"][index])
+        return pos, rot
+
+    def tcp(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._token(0) or self.env.tcp_pose()
+
+    def mug(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._token(1) or self.env.body_pose(self.env.mug_id)
+
+    def hanger(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.env.hanger_obs == "pose":
+            return self._token(2) or self.env.body_pose(self.env.hanger_id)
+        return self.env.body_pose(self.env.hanger_id)
+
+    def in_hand(self) -> tuple[np.ndarray, np.ndarray]:
+        """The mug's pose in the TCP frame (how it sits in the hand)."""
+        tcp_pos, tcp_rot = self.tcp()
+        pos, rot = self.mug()
+        return tcp_rot.T @ (pos - tcp_pos), tcp_rot.T @ rot
+
+    # ------------------------------------------------------------------ phases
+    def pick(self):
+        pos, rot = self.mug()
+        # Top-down, fingers closing along the mug's y axis (across the body, clear of the handle on +x).
+        grasp_rot = top_down(symmetric_yaw(yaw_of(rot), np.pi))
+        # Offsets mostly along the pads (TCP x); across them (TCP y) the open fingers clear the body by 8 mm.
+        off = grasp_rot @ (self.offset() * np.array([0.5, 0.3, 0.3]))
+        grasp = pos + np.array([0.0, 0.0, MUG_HEIGHT - GRASP_BELOW_RIM]) + off
+        yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
+        self.jitter_scale = PRECISE_JITTER
+        yield from self.move_to(grasp, grasp_rot, speed=0.008, tolerance=0.002)
+        yield from self.set_gripper(CLOSE, steps=8)
+        self.jitter_scale = 1.0
+        yield from self.move_to(grasp + [0, 0, 0.12], grasp_rot, speed=0.015)
+
+    def hang_rotation(self, in_hand) -> np.ndarray:
+        """Mug rotation for the slide: upright, the handle's opening (mug y) along the peg's heading. Of the
+        two such rotations (mug body on either side of the peg) the one with the TCP yaw nearest home."""
+        h_rot = self.hanger()[1]
+        heading = h_rot[:, 0]
+        options = []
+        for sign in (1.0, -1.0):
+            y = sign * heading
+            z = np.array([0.0, 0.0, 1.0])
+            options.append(np.stack([np.cross(y, z), y, z], axis=1))
+        return min(options, key=lambda r: abs(wrap(yaw_of(r @ in_hand[1].T))))
+
+    def hang(self):
+        h_pos, h_rot = self.hanger()
+        along = h_rot @ PEG_DIRECTION
+        root, tip = h_pos + h_rot @ PEG_ROOT, h_pos + h_rot @ PEG_TIP
+        off = self.offset(0.3)
+        err = off - along * (off @ along)  # across the peg only
+        pre = tip + APPROACH * along + err
+        seat = root + (SEAT + float(self.offset(1.5)[0])) * along + err
+        rel = self.in_hand()
+        mug_rot = self.hang_rotation(rel)
+
+        def tcp_at(hole: np.ndarray, grasp) -> tuple[np.ndarray, np.ndarray]:
+            """TCP pose that puts the centre of the handle's opening at ``hole``."""
+            return tcp_for_object(hole - mug_rot @ HOLE_CENTER, mug_rot, grasp)
+
+        yield from self.move_to(*tcp_at(pre + [0, 0, LIFT], rel))
+        yield from self.move_to(*tcp_at(pre, rel), speed=0.01)
+        # The mug may have shifted in the hand: re-measure before threading the handle onto the peg.
+        rel = self.in_hand()
+        yield from self.move_to(*tcp_at(pre, rel), speed=0.005, tolerance=0.002)
+        self.jitter_scale = PRECISE_JITTER
+        yield from self.move_to(*tcp_at(seat, rel), speed=0.006, tolerance=0.002)
+        yield from self.move_to(*tcp_at(seat - [0, 0, DROP], rel), speed=0.004, tolerance=0.002)
+        yield from self.set_gripper(OPEN, steps=8)
+        yield from self.move_to(self.cmd_pos + [0, 0, 0.08], self.cmd_rot, speed=0.01)
+        self.jitter_scale = 1.0
+
+    def mug_height(self) -> float:
+        return float(self.mug()[0][2] - TABLE_TOP)
+
+    def script(self):
+        for _ in range(1 + self.retries):
+            yield from self.pick()
+            if self.mug_height() < LIFTED:  # the grasp missed: open, back off, pick again
+                yield from self.set_gripper(OPEN, steps=6)
+                yield from self.move_to(self.cmd_pos + [0, 0, 0.06], self.cmd_rot)
+                continue
+            yield from self.hang()
+            yield from self.hold(10)
+            if self.mug_height() > LIFTED:  # hanging (or still in the air): done
+                break
+        yield from self.hold(40)

@@ -1,0 +1,289 @@
+"""Mug Hanging: the expert solves both layouts, the success rule rejects the near misses and waits 1 s, and
+the hanger's point cloud lies on the hanger and moves with it."""
+
+from __future__ import annotations
+
+import gym_actionflow
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gym_actionflow.geometry import pose9
+from gym_actionflow.point_cloud import in_boxes
+from gym_actionflow.tasks.mug_hanging import (
+    HANG_STEPS,
+    HOLE_CENTER,
+    MUG_FOOTPRINT,
+    MUG_HEIGHT,
+    PEG_DIRECTION,
+    PEG_ROOT,
+    MugHangingEnv,
+)
+from gymnasium.utils.env_checker import check_env
+
+ENV_ID = "gym_actionflow/MugHanging-v0"
+
+
+def run_expert(layout: str, seed: int, noise: float = 0.0) -> bool:
+    env = gym.make(ENV_ID, layout=layout)
+    episode = gym_actionflow.run_episode(env, gym_actionflow.make_expert(env, noise=noise, seed=seed), seed)
+    env.close()
+    return episode.success
+
+
+@pytest.mark.parametrize(("layout", "seed"), [("train", 0), ("train", 1), ("test", 0), ("test", 1)])
+def test_expert_solves_fixed_seeds(layout, seed):
+    """Test seeds 0 and 1 put the hanger on the right and on the left side of the table."""
+    assert run_expert(layout, seed, noise=1.0 if seed else 0.0)
+
+
+def fresh_env(layout: str = "train", seed: int = 0, **kwargs) -> MugHangingEnv:
+    env = gym.make(ENV_ID, layout=layout, terminate_on_success=False, **kwargs).unwrapped
+    env.reset(seed=seed)
+    return env
+
+
+def hold(env: MugHangingEnv, steps: int, grip: float = -1.0) -> list[tuple[bool, bool]]:
+    """Step with the arm holding its pose; returns (mug hanging right now, is_success) after every step."""
+    mujoco.mj_forward(env.model, env.data)
+    pos, rot = env.tcp_pose()
+    out = []
+    for _ in range(steps):
+        _, _, _, _, info = env.step(np.concatenate([pose9(pos, rot), [grip]]))
+        out.append((env.mug_hanging(), info["is_success"]))
+    return out
+
+
+def peg_point(env: MugHangingEnv, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """World point ``s`` metres along the peg's axis from the pole axis, and the hanger's rotation."""
+    h_pos, h_rot = env.body_pose(env.hanger_id)
+    return h_pos + h_rot @ (PEG_ROOT + s * PEG_DIRECTION), h_rot
+
+
+def place_mug_on_peg(env: MugHangingEnv, s: float = 0.07, below: float = 0.01) -> None:
+    """Put the mug upright with the centre of its handle's opening ``below`` under the peg's axis, ``s`` along
+    the peg (the expert's release pose), at rest."""
+    hole, h_rot = peg_point(env, s)
+    y = h_rot[:, 0]
+    rot = np.stack([np.cross(y, [0.0, 0.0, 1.0]), y, [0.0, 0.0, 1.0]], axis=1)
+    pos = hole - [0.0, 0.0, below] - rot @ HOLE_CENTER
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, rot.reshape(9))
+    env.set_free_pose("mug_joint", pos, quat)
+    env.data.qvel[:] = 0.0
+
+
+def test_hung_mug_is_success_only_after_one_second():
+    """Guards against a rule that fires at the first contact (a mug bouncing on the peg): the mug dropped onto
+    the peg hangs within a few steps, but success comes only once it has hung for 20 consecutive control steps
+    (1 s; a bounce that breaks contact restarts the count), and then stays."""
+    env = fresh_env()
+    place_mug_on_peg(env)
+    flags = hold(env, 60)
+    run, runs = 0, []
+    for hanging, _ in flags:
+        run = run + 1 if hanging else 0
+        runs.append(run)
+    success = [s for _, s in flags]
+    assert success == [r >= HANG_STEPS for r in runs]
+    assert not any(success[: HANG_STEPS - 1])
+    assert all(success[-20:]), "the mug should end up hanging for good"
+    assert env.handle_on_peg() and env.data.xpos[env.mug_id][2] > 0.1
+
+
+def test_mug_on_the_table_under_the_peg_is_not_success():
+    """Guards against a rule that only looks at positions: the mug stands on the table right under the peg."""
+    env = fresh_env()
+    point, _ = peg_point(env, 0.07)
+    env.set_free_pose("mug_joint", np.array([point[0], point[1], 0.0]), np.array([1.0, 0, 0, 0]))
+    flags = hold(env, HANG_STEPS + 5)
+    assert not any(h or s for h, s in flags)
+    assert env.hang_steps == 0
+
+
+def test_mug_standing_on_the_base_plate_is_not_success():
+    """Guards against 'touches the hanger, not the table': a mug standing on the hanger's base plate."""
+    env = fresh_env()
+    h_pos, h_rot = env.body_pose(env.hanger_id)
+    pos = h_pos + h_rot @ np.array([-0.02, 0.0, 0.013])
+    env.set_free_pose("mug_joint", pos, np.array([1.0, 0, 0, 0]))
+    flags = hold(env, HANG_STEPS + 5)
+    assert env.touching(env.mug_geoms, env.hanger_geoms)
+    assert not any(s for _, s in flags)
+
+
+def test_mug_held_on_the_peg_is_not_success_until_released():
+    """Guards against counting a mug that the gripper still holds: the expert brings the handle onto the peg;
+    instead of releasing, the gripper stays closed and presses the handle onto the peg for 2 s (no success,
+    the counter stays at 0); once opened and lifted away, success comes 1 s after the mug hangs."""
+    env = gym.make(ENV_ID, layout="test", terminate_on_success=False)
+    base = env.unwrapped
+    expert = gym_actionflow.make_expert(env)
+    obs, _ = env.reset(seed=1)
+    expert.reset()
+    closed = False
+    for _ in range(300):
+        action = expert.act(obs)
+        closed |= action[9] > 0
+        if closed and action[9] < 0:  # the expert is about to let go
+            break
+        obs, *_ = env.step(action)
+    assert base.handle_on_peg() and base.is_grasped(base.mug_geoms)
+    press = action.copy()
+    press[2] -= 0.015
+    press[9] = 1.0
+    for _ in range(40):
+        obs, _, _, _, info = env.step(press)
+        assert not info["is_success"]
+    assert base.handle_on_peg() and base.is_grasped(base.mug_geoms)
+    assert base.touching(base.mug_geoms, base.support_geoms)
+    assert base.hang_steps == 0
+    release = press.copy()
+    release[9] = -1.0
+    for _ in range(8):
+        obs, _, _, _, info = env.step(release)
+    lift = release.copy()
+    steps = []
+    for k in range(60):
+        lift[2] = min(press[2] + 0.01 * (k + 1), 0.5)
+        obs, _, _, _, info = env.step(lift)
+        steps.append((base.hang_steps, info["is_success"]))
+    assert any(s for _, s in steps)
+    assert all(s == (n >= HANG_STEPS) for n, s in steps)
+
+
+def test_layouts_fix_or_move_the_hanger_and_keep_the_mug_out_of_the_box():
+    """train keeps the hanger at one pose; test moves it to both sides with varied yaw. The mug's footprint
+    never reaches into the layout's point-cloud box (so the mug never pollutes the hanger's cloud)."""
+    rows = {}
+    for layout in ("train", "test"):
+        env = gym.make(ENV_ID, layout=layout).unwrapped
+        out = []
+        for seed in range(30):
+            obs, _ = env.reset(seed=seed)
+            h = obs["token_poses"][2]
+            mug = obs["token_poses"][1, :3].astype(np.float64)
+            # The mug's bounding box (footprint disc, full height) against every box of the filter.
+            corners = np.array([[dx, dy, dz] for dx in (-1, 1) for dy in (-1, 1) for dz in (0, 1)])
+            pts = mug + corners * [MUG_FOOTPRINT, MUG_FOOTPRINT, MUG_HEIGHT]
+            low, high = pts.min(0), pts.max(0)
+            for box in env.boxes:
+                assert np.any(high < box[0]) or np.any(low > box[1]), f"{layout} seed {seed}: mug in the box"
+            out.append([h[0], h[1], np.arctan2(h[4], h[3]) % (2 * np.pi), *mug[:2]])
+        rows[layout] = np.array(out)
+        env.close()
+    train, test = rows["train"], rows["test"]
+    np.testing.assert_allclose(train[:, :3], np.tile([0.14, 0.0, np.pi], (30, 1)), atol=1e-5)
+    assert np.all((test[:, 0] >= 0.02) & (test[:, 0] <= 0.12))
+    assert np.all((np.abs(test[:, 1]) >= 0.18) & (np.abs(test[:, 1]) <= 0.26))
+    assert (test[:, 1] > 0).sum() >= 5 and (test[:, 1] < 0).sum() >= 5, "both sides should occur"
+    assert np.all(np.abs(test[:, 2] - np.pi) <= np.pi / 8 + 1e-5) and np.ptp(test[:, 2]) > 0.3
+    assert np.ptp(train[:, 3]) > 0.05 and np.ptp(train[:, 4]) > 0.03, "the mug pose should vary"
+
+
+# ---------------------------------------------------------------- point cloud
+def surface_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms, points: np.ndarray) -> np.ndarray:
+    """Distance (M,) from each point to the nearest surface of the given box / cylinder / capsule geoms,
+    from their analytic signed distance functions (independent of the rendering and back-projection)."""
+    out = np.full(len(points), np.inf)
+    for g in geoms:
+        local = (points - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
+        size = model.geom_size[g]
+        kind = model.geom_type[g]
+        if kind == mujoco.mjtGeom.mjGEOM_BOX:
+            q = np.abs(local) - size
+        elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+            q = np.stack([np.hypot(local[:, 0], local[:, 1]) - size[0], np.abs(local[:, 2]) - size[1]], 1)
+        elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            axis = np.zeros_like(local)
+            axis[:, 2] = np.clip(local[:, 2], -size[1], size[1])
+            out = np.minimum(out, np.abs(np.linalg.norm(local - axis, axis=1) - size[0]))
+            continue
+        else:
+            raise AssertionError(f"unexpected hanger geom type {kind}")
+        sdf = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(1), 0.0)
+        out = np.minimum(out, np.abs(sdf))
+    return out
+
+
+@pytest.fixture(scope="module")
+def cloud_env():
+    env = gym.make(ENV_ID, layout="test", hanger_obs="point_cloud", terminate_on_success=False).unwrapped
+    yield env
+    env.close()
+
+
+def test_point_cloud_observation_schema(cloud_env):
+    """`point_cloud` is (P, 3) float32 and declared in the observation space; the hanger token is the cloud's
+    centroid with the identity rotation; the cloud stays fixed over the episode."""
+    obs, _ = cloud_env.reset(seed=0)
+    cloud = obs["point_cloud"]
+    assert cloud.shape == (512, 3) and cloud.dtype == np.float32
+    assert cloud_env.observation_space["point_cloud"].shape == (512, 3)
+    assert cloud_env.observation_space.contains(obs)
+    np.testing.assert_allclose(obs["token_poses"][2, :3], cloud.mean(0), atol=1e-5)
+    np.testing.assert_array_equal(obs["token_poses"][2, 3:], [1, 0, 0, 0, 1, 0])
+    assert len(np.unique(cloud, axis=0)) == len(cloud), "farthest point sampling repeats no point"
+    obs2, *_ = cloud_env.step(np.concatenate([obs["token_poses"][0], [-1.0]]))
+    np.testing.assert_array_equal(obs2["point_cloud"], cloud)
+
+
+@pytest.mark.parametrize(("layout", "seed"), [("train", 0), ("test", 0), ("test", 1)])
+def test_every_cloud_point_lies_on_the_hanger(layout, seed, cloud_env):
+    """Guards against a wrong back-projection (vertical flip, depth conversion, intrinsics) and a leaky box
+    filter (table, robot, mug): every point is within 3 mm of the surface of a hanger geom."""
+    env = cloud_env if layout == "test" else fresh_env("train", hanger_obs="point_cloud", n_points=256)
+    obs, _ = env.reset(seed=seed)
+    dist = surface_distance(env.model, env.data, sorted(env.hanger_geoms), obs["point_cloud"].astype(float))
+    assert dist.max() < 0.003, f"a point is {dist.max() * 1000:.1f} mm off the hanger"
+    assert in_boxes(obs["point_cloud"], env.boxes).all()
+    # The cloud covers the hanger: base plate, pole top and peg tip are all represented.
+    h_pos, h_rot = env.body_pose(env.hanger_id)
+    local = (obs["point_cloud"] - h_pos) @ h_rot
+    assert local[:, 2].min() < 0.015 and local[:, 2].max() > 0.24 and local[:, 0].max() > 0.09
+    if env is not cloud_env:
+        env.close()
+
+
+def test_cloud_follows_the_hanger(cloud_env):
+    """Two test layouts (hanger on the right, then on the left, different yaws): the clouds' centroids,
+    expressed in the hanger's own frame, agree within 5 mm, i.e. the centroid moves rigidly with the
+    hanger (its world shift equals the hanger body's shift, up to the rotation of the centroid's offset)."""
+    local, where = [], []
+    for seed in (0, 1):
+        obs, _ = cloud_env.reset(seed=seed)
+        h_pos, h_rot = cloud_env.body_pose(cloud_env.hanger_id)
+        local.append(h_rot.T @ (obs["point_cloud"].mean(0) - h_pos))
+        where.append(h_pos)
+    assert np.linalg.norm(where[1] - where[0]) > 0.3, "the two layouts should put the hanger on both sides"
+    assert np.linalg.norm(local[0] - local[1]) < 0.005
+
+
+def test_point_cloud_is_deterministic_given_the_seed(cloud_env):
+    a = cloud_env.reset(seed=3)[0]["point_cloud"]
+    b = cloud_env.reset(seed=4)[0]["point_cloud"]
+    c = cloud_env.reset(seed=3)[0]["point_cloud"]
+    np.testing.assert_array_equal(a, c)
+    assert not np.array_equal(a, b)
+
+
+def test_check_env_with_point_cloud_and_pixels():
+    """Gymnasium's checker on the point-cloud variant (with the 80 x 80 wrist camera, P = 64)."""
+    env = gym.make(ENV_ID, layout="train", hanger_obs="point_cloud", n_points=64, obs_mode="pixels")
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    assert obs["pixels"]["wrist"].shape == (80, 80, 3) and obs["point_cloud"].shape == (64, 3)
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"layout": "D7"}, r"layout='D7'; expected one of \('train', 'test'\)"),
+        ({"hanger_obs": "x"}, r"hanger_obs='x'; expected 'pose' .* or 'point_cloud'"),
+        ({"n_points": 0}, "n_points=0; expected a positive integer"),
+    ],
+)
+def test_bad_kwargs_raise_clear_errors(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make(ENV_ID, **kwargs)
