@@ -40,6 +40,13 @@ def load(entry_point: str) -> type:
 
 TASKS: tuple[TaskSpec, ...] = (
     TaskSpec(
+        "Stack",
+        "gym_actionflow.tasks.stack:StackEnv",
+        "gym_actionflow.experts.stack_three:StackExpert",
+        200,
+        ("D0", "D1"),
+    ),
+    TaskSpec(
         "StackThree",
         "gym_actionflow.tasks.stack_three:StackThreeEnv",
         "gym_actionflow.experts.stack_three:StackThreeExpert",

@@ -64,3 +64,11 @@ class StackThreeExpert(ScriptedExpert):
         yield from self.stack("cube_a", "cube_b")
         yield from self.stack("cube_c", "cube_a")
         yield from self.hold(10)
+
+
+class StackExpert(StackThreeExpert):
+    """Stack: pick A, place it on B."""
+
+    def script(self):
+        yield from self.stack("cube_a", "cube_b")
+        yield from self.hold(10)

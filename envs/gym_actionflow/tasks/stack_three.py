@@ -72,7 +72,8 @@ class StackThreeEnv(ManipulationEnv):
     task_description = "Stack the red cube on the green cube, then the blue cube on the red cube."
 
     def _build_task(self, spec: mujoco.MjSpec) -> None:
-        for name, half in CUBE_HALF.items():
+        for name in self.entity_names:
+            half = CUBE_HALF[name]
             add_box_object(spec, name, (half, half, half), CUBE_RGBA[name])
 
     def _cache_refs(self) -> None:
@@ -82,9 +83,9 @@ class StackThreeEnv(ManipulationEnv):
 
     def _sample_layout(self, rng: np.random.Generator) -> None:
         half = RANGE[self.variant]
-        names = list(CUBE_HALF)
+        names = self.entity_names
         radii = [CUBE_HALF[n] * np.sqrt(2) + 0.01 for n in names]
-        placed = sample_separated(rng, [square(half)] * 3, radii)
+        placed = sample_separated(rng, [square(half)] * len(names), radii)
         for name, (xy, yaw) in zip(names, placed, strict=True):
             pos = np.array([xy[0], xy[1], TABLE_TOP + CUBE_HALF[name]])
             self.set_free_pose(f"{name}_joint", pos, yaw_quat(yaw))
