@@ -62,6 +62,8 @@ def test_observation_schema(env_id):
     assert obs["token_features"][0, n] == obs["agent_pos"][9]
     np.testing.assert_array_equal(obs["environment_state"], obs["token_poses"][1:].reshape(-1))
     assert info["is_success"] is False
+    # Vectorised evaluators read both from every sub-env.
+    assert base.task == BY_ID[env_id].name and base.task_description.endswith(".")
     env.close()
 
 

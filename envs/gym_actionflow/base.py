@@ -191,6 +191,13 @@ class ManipulationEnv(gym.Env):
 
     # ------------------------------------------------------------------ helpers for tasks
     @property
+    def task(self) -> str:
+        """The task's name (``Stack``, ``Coffee``...); ``task_description`` is the instruction in words.
+
+        Vectorised evaluators (LeRobot's ``lerobot-eval``) read both attributes from every sub-env."""
+        return type(self).__name__.removesuffix("Env")
+
+    @property
     def n_tokens(self) -> int:
         return 1 + len(self.entity_names)
 
