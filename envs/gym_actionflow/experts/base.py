@@ -151,18 +151,23 @@ def run_episode(
     seed: int,
     expert_seed: int | None = None,
     on_frame: Callable[[np.ndarray], None] | None = None,
+    on_step: Callable[[dict, np.ndarray], None] | None = None,
 ) -> Episode:
     """Reset ``env`` with ``seed`` and run ``expert`` until the episode terminates or is truncated.
 
     ``env`` must come from ``gym.make``, whose time limit ends every episode. ``on_frame`` receives
-    ``env.render()`` before each step (for videos)."""
+    ``env.render()`` before each step (for videos); ``on_step`` receives each observation and the action
+    taken from it (for datasets)."""
     obs, info = env.reset(seed=seed)
     expert.reset(seed=expert_seed)
     steps, terminated, truncated, reward = 0, False, False, 0.0
     while not (terminated or truncated):
         if on_frame is not None:
             on_frame(env.render())
-        obs, reward, terminated, truncated, info = env.step(expert.act(obs))
+        action = expert.act(obs)
+        if on_step is not None:
+            on_step(obs, action)
+        obs, reward, terminated, truncated, info = env.step(action)
         steps += 1
     return Episode(bool(info["is_success"]), steps, bool(terminated), float(reward))
 
