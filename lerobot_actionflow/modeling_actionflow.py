@@ -84,6 +84,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
         """Clear the observation history and the action queue; call on every ``env.reset()``."""
         self._obs_queues = {k: deque(maxlen=self.config.n_obs_steps) for k in self.observation_keys}
         self._action_queue: deque[Tensor] = deque(maxlen=self.config.n_action_steps)
+        self.last_chunk: Tensor | None = None
         self._last_action: Tensor | None = None
 
     # ------------------------------------------------------------------ inputs
@@ -233,6 +234,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
             history = {k: torch.stack(list(q), dim=1) for k, q in self._obs_queues.items()}
             start = self._clock()
             chunk = self.predict_action_chunk(history)
+            self.last_chunk = chunk  # the whole generated chunk, world frame (for visualisation)
             skip = 0
             if self.config.latency_compensation:
                 # Actions are due at 1 / control_fps intervals from the observation; keep at least one.
