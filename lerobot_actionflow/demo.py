@@ -1,15 +1,18 @@
-"""The main job: train ActionFlow with the real ``lerobot-train`` on a synthetic token dataset, then show
-what it learned, on new scenes and on the same scenes rigidly moved (equivariance).
+"""The main job: record expert demonstrations of a gym_actionflow task, train ActionFlow on them with
+``lerobot-train``, evaluate it with ``lerobot-eval``, and save a 3D rerun recording of one evaluation rollout.
 
-    python -m lerobot_actionflow.demo [--episodes 50] [--steps 800] [--output-dir outputs/demo]
+    python -m lerobot_actionflow.demo [--task Stack] [--episodes 100] [--steps 2000] [--output-dir DIR]
 
-Every step is a standard LeRobot tool: a LeRobotDataset on disk, ``lerobot-train --policy.type=actionflow``,
-``ActionFlowPolicy.from_pretrained`` with the checkpoint's saved pre/post-processors.
+Every step is a standard tool a LeRobot user already knows, run as a command (printed before it runs):
+``actionflow-record`` writes a LeRobotDataset, ``lerobot-train --policy.type=actionflow`` trains,
+``lerobot-eval --env.type=actionflow`` evaluates on new seeds (and writes videos). Only the rerun recording
+is made in-process, from the same checkpoint and the first evaluation seed.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import subprocess
@@ -17,96 +20,113 @@ import sys
 import time
 from pathlib import Path
 
-import torch
-
-from lerobot_actionflow import geometry as g
-from lerobot_actionflow import synthetic as syn
-
-REPO_ID = "local/actionflow_synthetic_reach"
+EVAL_SEED = 100_000
+"""First evaluation seed: far from the recording seeds (0, 1, ...), so every evaluated layout is new."""
 
 
-def train(dataset_root: Path, out: Path, steps: int, batch_size: int, seed: int) -> Path:
-    cmd = [
-        str(Path(sys.executable).parent / "lerobot-train"),
-        "--policy.type=actionflow",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        "--policy.optimizer_lr=2e-3",
-        f"--dataset.repo_id={REPO_ID}",
-        f"--dataset.root={dataset_root}",
-        f"--steps={steps}",
-        f"--batch_size={batch_size}",
-        "--num_workers=2",
-        f"--save_freq={steps}",
-        f"--log_freq={max(steps // 15, 1)}",
-        f"--seed={seed}",
-        f"--output_dir={out}",
-    ]
-    print("$ " + " ".join(cmd), flush=True)
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+def _cli(name: str) -> str:
+    return str(Path(sys.executable).parent / name)
+
+
+def run(cmd: list[str], **env_vars: str) -> None:
+    prefix = "".join(f"{k}={v} " for k, v in env_vars.items())
+    print(f"\n$ {prefix}" + " ".join(cmd), flush=True)
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", **env_vars}
     subprocess.run(cmd, check=True, env=env)
-    return out / "checkpoints" / "last" / "pretrained_model"
 
 
-def evaluate(ckpt: Path, scenes: int, seed: int) -> None:
-    from lerobot.policies.factory import make_pre_post_processors
-
-    from lerobot_actionflow import ActionFlowPolicy
-
-    policy = ActionFlowPolicy.from_pretrained(ckpt)
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(ckpt))
-
-    def act(obs):
-        return post(policy.select_action(pre(obs)))
-
-    scene = syn.sample_scenes(scenes, seed)
-    # The same scenes, each moved by one random rigid transform (rotation about any axis, up to ~0.5 m).
-    gen = torch.Generator().manual_seed(seed + 1)
-    rot = g.random_rotation((), generator=gen, dtype=torch.float64)
-    trans = torch.randn(3, generator=gen, dtype=torch.float64) * 0.3
-    rows = []
-    for name, sc in (
-        ("new scenes", scene),
-        ("same scenes, moved by a random SE(3)", scene.transformed(rot, trans)),
-    ):
-        policy.reset()
-        torch.manual_seed(seed)
-        res = syn.evaluate_closed_loop(act, sc)
-        rows.append((name, res))
-    print(
-        "\nClosed-loop evaluation: reach the grasp pose (< 1 cm, < 0.05 rad) and close the gripper, 40 steps"
-    )
-    print(f"{'':40s} {'success':>8s} {'median trans err':>17s} {'median rot err':>15s}")
-    for name, res in rows:
-        print(
-            f"{name:40s} {res.success.float().mean().item():8.0%} "
-            f"{res.trans_error.median().item() * 1000:14.1f} mm {res.rot_error.median().item():11.3f} rad"
-        )
-
-
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"))
-    parser.add_argument("--episodes", type=int, default=50, help="expert episodes in the training dataset")
-    parser.add_argument("--steps", type=int, default=800, help="lerobot-train optimisation steps")
+    parser.add_argument("--task", default="Stack", help="gym_actionflow task name")
+    parser.add_argument("--variant", default="D0")
+    parser.add_argument("--episodes", type=int, default=100, help="expert episodes to record")
+    parser.add_argument("--steps", type=int, default=2000, help="lerobot-train optimisation steps")
     parser.add_argument("--batch-size", type=int, default=32)
-    parser.add_argument("--eval-scenes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=1000)
-    args = parser.parse_args()
+    parser.add_argument("--eval-episodes", type=int, default=20)
+    parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"))
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        help="OMP_NUM_THREADS for lerobot-train: on a 2-core CPU the trainer shares the cores with 2 loader "
+        "workers, and one thread each is faster than oversubscribing (use 0 to leave it to torch)",
+    )
+    args = parser.parse_args(argv)
 
     start = time.time()
     if args.output_dir.exists():
         shutil.rmtree(args.output_dir)
-    dataset_root = args.output_dir / "dataset"
+    out = args.output_dir
+    repo_id = f"local/{args.task.lower()}_{args.variant.lower()}_{args.episodes}"
+    dataset = out / "dataset"
+    timings: dict[str, float] = {}
+
+    t = time.time()
+    run([
+        _cli("actionflow-record"), "--task", args.task, "--variant", args.variant,
+        "--episodes", str(args.episodes), "--seed", "0", "--noise", "1",
+        "--repo-id", repo_id, "--root", str(dataset),
+    ])  # fmt: skip
+    timings["record"] = time.time() - t
+
+    t = time.time()
+    run([
+        _cli("lerobot-train"), "--policy.type=actionflow", "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100",
+        f"--policy.scheduler_decay_steps={args.steps}",
+        f"--dataset.repo_id={repo_id}", f"--dataset.root={dataset}",
+        f"--steps={args.steps}", f"--batch_size={args.batch_size}", "--num_workers=2",
+        f"--save_freq={args.steps}", f"--log_freq={max(args.steps // 20, 1)}",
+        f"--seed={args.seed}", f"--output_dir={out / 'train'}",
+    ], **({"OMP_NUM_THREADS": str(args.torch_threads)} if args.torch_threads > 0 else {}))  # fmt: skip
+    timings["train"] = time.time() - t
+    ckpt = out / "train" / "checkpoints" / "last" / "pretrained_model"
+
+    t = time.time()
+    run([
+        _cli("lerobot-eval"), f"--policy.path={ckpt}", "--policy.device=cpu",
+        "--env.type=actionflow", f"--env.task={args.task}-v0", f"--env.variant={args.variant}",
+        f"--eval.n_episodes={args.eval_episodes}", f"--eval.batch_size={min(args.eval_episodes, 10)}",
+        "--eval.use_async_envs=false",
+        f"--seed={EVAL_SEED}", f"--output_dir={out / 'eval'}",
+    ])  # fmt: skip
+    timings["eval"] = time.time() - t
+    info = json.loads((out / "eval" / "eval_info.json").read_text())
+    overall = info["overall"]
+
+    t = time.time()
+    rrd = out / "rollout.rrd"
+    from lerobot_actionflow.visualize import main as visualize
+
     print(
-        f"Recording {args.episodes} expert episodes of the synthetic reach task -> {dataset_root}", flush=True
+        f"\n$ python -m lerobot_actionflow.visualize {ckpt} --task {args.task}-v0 --seed {EVAL_SEED}",
+        flush=True,
     )
-    syn.write_dataset(dataset_root, REPO_ID, episodes=args.episodes, steps=30, seed=0)
-    ckpt = train(dataset_root, args.output_dir / "train", args.steps, args.batch_size, seed=args.seed)
-    evaluate(ckpt, args.eval_scenes, seed=args.seed)
-    print(f"\nCheckpoint: {ckpt}\nTotal time: {time.time() - start:.0f} s")
+    visualize([str(ckpt), "--task", f"{args.task}-v0", "--variant", args.variant,
+               "--seed", str(EVAL_SEED), "--out", str(rrd)])  # fmt: skip
+    timings["rerun"] = time.time() - t
+
+    total = time.time() - start
+    videos = sorted((out / "eval").rglob("*.mp4"))
+    print("\n" + "=" * 78)
+    print(
+        f"ActionFlow on {args.task}-v0 ({args.variant}), trained on {args.episodes} expert episodes for "
+        f"{args.steps} steps (CPU)"
+    )
+    print(
+        f"  success rate: {overall['pc_success']:.0f} % over {overall['n_episodes']} new layouts "
+        "(lerobot-eval)"
+    )
+    print(f"  checkpoint:   {ckpt}")
+    if videos:
+        print(f"  videos:       {videos[0].parent} ({len(videos)} mp4)")
+    print(f"  3D recording: {rrd}   open it with:  {Path(sys.executable).parent / 'rerun'} {rrd}")
+    stages = ", ".join(f"{k} {v / 60:.1f} min" for k, v in timings.items())
+    print(f"  wall time:    {total / 60:.1f} min ({stages})")
 
 
 if __name__ == "__main__":

@@ -26,9 +26,11 @@ PATH_COLOR = (40, 120, 255)
 
 
 def _pose_rt(pose9: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), rotation (3, 3)) of a pose vector."""
     from gym_actionflow.geometry import pose9_to_rt
 
-    return pose9_to_rt(pose9)
+    rot, pos = pose9_to_rt(pose9)
+    return pos, rot
 
 
 def policy_observation(obs: dict) -> dict[str, torch.Tensor]:
