@@ -469,6 +469,9 @@ def main(argv: list[str] | None = None) -> int:
 
     # Without a system FFmpeg, torchcodec logs a long traceback and LeRobot falls back to pyav: harmless here.
     logging.getLogger("lerobot.utils.import_utils").setLevel(logging.ERROR)
+    # A process started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C and
+    # `kill -INT` must still stop a recording cleanly.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
