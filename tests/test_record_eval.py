@@ -1,0 +1,289 @@
+"""Recording datasets from the experts, LeRobot's commands on them, and the rerun recording of a rollout."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from lerobot_actionflow.env_config import ActionFlowEnvConfig
+from lerobot_actionflow.record import LOG_NAME, Recipe, load_recipe, record
+
+REPO_ID = "local/stack_d0_test"
+LEROBOT_KEYS = {"timestamp", "frame_index", "episode_index", "index", "task_index", "task"}
+SCHEMA = {  # Stack: 3 tokens (EEF, cube A, cube B), features = one-hot (3) + gripper opening
+    "observation.token_poses": (3, 9),
+    "observation.token_features": (3, 4),
+    "observation.state": (10,),
+    "observation.environment_state": (18,),
+    "action": (10,),
+}
+DATASETS_DIR = Path(__file__).resolve().parents[1] / "datasets"
+
+
+def _cli(name: str) -> str:
+    return str(Path(sys.executable).parent / name)
+
+
+def _env(tmp: Path, **extra: str) -> dict[str, str]:
+    return {
+        **os.environ,
+        "HF_HUB_OFFLINE": "1",
+        "WANDB_MODE": "disabled",
+        "HF_LEROBOT_HOME": str(tmp / "hf_lerobot"),
+        **extra,
+    }
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("rec") / "stack"
+    result = record(
+        Recipe(task="Stack", variant="D0", episodes=2, repo_id=REPO_ID), root=root, progress=False
+    )
+    assert result.episodes == 2
+    return root
+
+
+@pytest.fixture(scope="module")
+def checkpoint(dataset, tmp_path_factory) -> Path:
+    """A tiny ActionFlow checkpoint trained for 2 steps by the real lerobot-train on the recorded dataset."""
+    out = tmp_path_factory.mktemp("train") / "run"
+    cmd = [
+        _cli("lerobot-train"), "--policy.type=actionflow", "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        "--policy.dim=32", "--policy.ipa_layers=1", "--policy.transformer_layers=1",
+        f"--dataset.repo_id={REPO_ID}", f"--dataset.root={dataset}", "--steps=2", "--batch_size=4",
+        "--num_workers=0", "--save_freq=2", f"--output_dir={out}",
+        # Evaluation during training, through the env plugin: one episode at step 2.
+        "--env.type=actionflow", "--env.task=Stack-v0", "--env_eval_freq=2", "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+    ]  # fmt: skip
+    res = subprocess.run(cmd, env=_env(out.parent), capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    return out / "checkpoints" / "last" / "pretrained_model"
+
+
+def test_recorded_dataset_loads_with_exactly_the_schema(dataset):
+    ds = LeRobotDataset(REPO_ID, root=dataset)
+    assert ds.num_episodes == 2 and ds.fps == 20
+    item = ds[0]
+    assert set(item) == set(SCHEMA) | LEROBOT_KEYS
+    for key, shape in SCHEMA.items():
+        assert tuple(item[key].shape) == shape, key
+        assert item[key].dtype == torch.float32, key
+    assert item["task"] == "Stack the red cube on the green cube."
+    # The state is the EEF token + gripper opening; the environment state the object tokens, flattened.
+    torch.testing.assert_close(item["observation.state"][:9], item["observation.token_poses"][0])
+    torch.testing.assert_close(
+        item["observation.environment_state"], item["observation.token_poses"][1:].flatten()
+    )
+    log = json.loads((dataset / "meta" / LOG_NAME).read_text())
+    assert log["kept_seeds"] == [0, 1] and log["failed_seeds"] == []
+
+
+def test_recorded_actions_replay_to_success(dataset):
+    """The stored actions are the expert's: replaying episode 0 on seed 0 solves the task again."""
+    ds = LeRobotDataset(REPO_ID, root=dataset)
+    actions = [ds[i]["action"].numpy() for i in range(ds.meta.episodes["length"][0])]
+    env = gym.make("gym_actionflow/Stack-v0")
+    env.reset(seed=0)
+    for action in actions:
+        *_, info = env.step(action)
+    assert info["is_success"]
+    env.close()
+
+
+def test_wrist_camera_is_recorded_as_video(tmp_path):
+    recipe = Recipe(task="Stack", variant="D0", episodes=1, repo_id="local/px", obs_mode="pixels")
+    record(recipe, root=tmp_path / "px", progress=False)
+    ds = LeRobotDataset("local/px", root=tmp_path / "px")
+    assert ds.meta.video_keys == ["observation.images.wrist"]
+    image = ds[3]["observation.images.wrist"]
+    assert (
+        image.shape == (3, 84, 84) and image.dtype == torch.float32 and 0 <= image.min() <= image.max() <= 1
+    )
+
+
+def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path):
+    root = tmp_path / "rec"
+    cmd = [
+        _cli("actionflow-record"), "--task", "Stack", "--episodes", "4", "--repo-id", "local/int",
+        "--root", str(root), "--quiet",
+    ]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd, env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    log_path = root / "meta" / LOG_NAME
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        if log_path.is_file() and json.loads(log_path.read_text())["kept_seeds"]:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the recording ended before it could be interrupted:\n" + proc.stdout.read()
+    proc.send_signal(signal.SIGINT)  # Ctrl-C after the first episode
+    output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, output
+    assert "run the same command again to resume" in output
+    kept = json.loads(log_path.read_text())["kept_seeds"]
+    assert 1 <= len(kept) < 4
+    partial = LeRobotDataset("local/int", root=root)
+    assert partial.num_episodes == len(kept)
+    assert len(partial) == sum(partial.meta.episodes["length"])
+
+    done = subprocess.run(cmd, env=_env(tmp_path), capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    full = LeRobotDataset("local/int", root=root)
+    assert full.num_episodes == 4
+    assert json.loads(log_path.read_text())["kept_seeds"] == [0, 1, 2, 3]  # resumed, no seed twice
+    # The finished episodes are unchanged by the resume.
+    np.testing.assert_array_equal(full[0]["action"].numpy(), partial[0]["action"].numpy())
+
+
+def test_lerobot_eval_runs_a_checkpoint_through_env_type_actionflow(checkpoint, tmp_path):
+    out = tmp_path / "eval"
+    cmd = [
+        _cli("lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=actionflow",
+        "--env.task=Stack-v0", "--eval.n_episodes=2", "--eval.batch_size=2", "--seed=100000",
+        f"--output_dir={out}",
+    ]  # fmt: skip
+    res = subprocess.run(cmd, env=_env(tmp_path), capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    info = json.loads((out / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 2  # two sub-envs in worker processes (async vector env)
+    assert "pc_success" in info["overall"]
+    episode = info["per_task"][0]["metrics"] if "per_task" in info else None
+    assert episode is None or len(episode["successes"]) == 2
+    assert list(out.rglob("*.mp4")), "lerobot-eval wrote no video"
+
+
+def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(dataset, tmp_path):
+    """LeRobot's diffusion policy reads observation.state + observation.environment_state: same data, same
+    commands."""
+    out = tmp_path / "diffusion"
+    cmd = [
+        _cli("lerobot-train"), "--policy.type=diffusion", "--policy.device=cpu", "--policy.push_to_hub=false",
+        "--policy.down_dims=[32,64]", "--policy.horizon=16", "--policy.n_action_steps=8",
+        "--policy.num_inference_steps=4",
+        f"--dataset.repo_id={REPO_ID}", f"--dataset.root={dataset}", "--steps=2", "--batch_size=4",
+        "--num_workers=0", "--save_freq=2", "--log_freq=1", f"--output_dir={out}",
+    ]  # fmt: skip
+    res = subprocess.run(cmd, env=_env(tmp_path), capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert "loss" in res.stdout + res.stderr
+    ckpt = out / "checkpoints" / "last" / "pretrained_model"
+    config = json.loads((ckpt / "config.json").read_text())
+    assert config["type"] == "diffusion"
+    assert "observation.environment_state" in config["input_features"]
+    cmd = [
+        _cli("lerobot-eval"), f"--policy.path={ckpt}", "--policy.device=cpu", "--env.type=actionflow",
+        "--env.task=Stack-v0", "--eval.n_episodes=1", "--eval.batch_size=1",
+        f"--output_dir={tmp_path / 'ev'}",
+    ]  # fmt: skip
+    res = subprocess.run(cmd, env=_env(tmp_path), capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert json.loads((tmp_path / "ev" / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+
+def test_rerun_recording_is_written_and_reads_back(checkpoint, tmp_path):
+    import rerun as rr
+    from lerobot.policies.factory import make_pre_post_processors
+    from rerun.error_utils import RerunWarning
+
+    from lerobot_actionflow import ActionFlowPolicy
+    from lerobot_actionflow.visualize import record_rollout
+
+    policy = ActionFlowPolicy.from_pretrained(checkpoint)
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    env = gym.make("gym_actionflow/Stack-v0", obs_mode="pixels", max_episode_steps=12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RerunWarning)  # rerun reports malformed data as warnings
+        result = record_rollout(policy, pre, post, env, seed=0, path=tmp_path / "roll.rrd")
+    env.close()
+    assert result["steps"] == 12 and result["path"].stat().st_size > 0
+    recording = rr.recording.load_recording(str(result["path"]))
+    paths = {str(p) for p in recording.schema().entity_paths()} if hasattr(recording, "schema") else set()
+    if not paths:  # older readers: the entity paths are in the chunk store
+        paths = {c.entity_path for c in recording.chunks()}
+    for entity in ("/world/scene/eef", "/world/scene/cube_a", "/world/chunk", "/world/eef_path", "/wrist"):
+        assert entity in paths, (entity, sorted(paths))
+
+
+# ---------------------------------------------------------------------------- bad input, nothing written
+
+
+def test_unknown_task_is_a_clear_error_and_writes_nothing(tmp_path):
+    res = subprocess.run(
+        [_cli("actionflow-record"), "--task", "Juggle", "--episodes", "2", "--root", str(tmp_path / "x")],
+        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 2
+    assert "unknown task 'Juggle'" in res.stderr and "StackThree" in res.stderr
+    assert not (tmp_path / "x").exists()
+    with pytest.raises(ValueError, match="'Juggle-v0' is not a gym_actionflow task"):
+        ActionFlowEnvConfig(task="Juggle-v0")
+
+
+def test_recipe_with_a_missing_field_is_a_clear_error(tmp_path):
+    recipe = tmp_path / "bad.toml"
+    recipe.write_text('task = "Stack"\nvariant = "D0"\nrepo_id = "local/bad"\n')
+    with pytest.raises(ValueError, match=r"missing the field\(s\) \['episodes'\]"):
+        load_recipe(recipe)
+    res = subprocess.run(
+        [_cli("actionflow-record"), str(recipe), "--root", str(tmp_path / "x")],
+        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 2 and "episodes" in res.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_push_without_credentials_fails_before_recording(tmp_path):
+    env = _env(tmp_path, HF_HOME=str(tmp_path / "hf_home"), HF_HUB_OFFLINE="0")
+    env.pop("HF_TOKEN", None)
+    res = subprocess.run(
+        [_cli("actionflow-record"), "--task", "Stack", "--episodes", "1", "--push-to-hub", "someone/stack",
+         "--root", str(tmp_path / "x")],
+        env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 2
+    assert "needs Hugging Face credentials" in res.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_dataset_card_tells_what_was_recorded_and_how(dataset):
+    from lerobot_actionflow.record import RecordingLog, dataset_card_text
+
+    log = RecordingLog.load(dataset)
+    recipe = Recipe(**(log.recipe | {"episodes": 2}))
+    card = dataset_card_text(recipe, log)
+    for text in ("gym_actionflow/Stack-v0", "`D0`", "| episodes | 2", "0..1", "expert noise | 1", "100.0%"):
+        assert text in card, text
+    assert "actionflow-record --task Stack --variant D0 --episodes 2 --seed 0 --noise 1" in card
+
+
+def test_resuming_with_a_different_recipe_is_refused(dataset, tmp_path):
+    with pytest.raises(ValueError, match="holds a different recording"):
+        record(Recipe(task="Stack", variant="D1", episodes=3, repo_id=REPO_ID), root=dataset, progress=False)
+
+
+def test_every_recipe_in_datasets_is_valid():
+    from gym_actionflow import TASKS
+
+    recipes = sorted(DATASETS_DIR.glob("*.toml"))
+    assert len(recipes) >= 10
+    names = {t.name: t for t in TASKS}
+    for path in recipes:
+        recipe = load_recipe(path)
+        assert recipe.variant in names[recipe.task].variants, path
+        assert path.stem == recipe.repo_id.split("/")[-1], path
