@@ -112,10 +112,12 @@ def main() -> None:
             lengths = [r[1] for r in results]
             success_rows.append((env_id.split("/")[1][:-3], variant, noise, np.mean(ok), np.mean(lengths)))
 
+    everything = args.tasks == [t.name for t in gym_actionflow.TASKS]
+    tasks_arg = "" if everything else " --tasks " + " ".join(args.tasks)
     lines = [
         "# gym_actionflow benchmark (CPU)",
         "",
-        f"`python eval/bench_envs.py --episodes {args.episodes}` on "
+        f"`python eval/bench_envs.py --episodes {args.episodes}{tasks_arg}` on "
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores; speed in one process.",
         "",
         "| task | steps/s (state) | steps/s (state + wrist RGB) | wrist image | camera ms/step |",
