@@ -282,12 +282,11 @@ def _open_dataset(recipe: Recipe, root: Path, features: dict):
 
 def record(recipe: Recipe, root: str | Path | None = None, progress: bool = True) -> RecordResult:
     """Record ``recipe`` into a LeRobotDataset at ``root`` (default ``$HF_LEROBOT_HOME/<repo_id>``)."""
+    import datasets
     from gym_actionflow import make_expert, run_episode
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from lerobot.utils.constants import HF_LEROBOT_HOME
     from tqdm import tqdm
-
-    import datasets
 
     task = resolve_task(recipe.task)
     if recipe.variant not in task.variants:
