@@ -486,11 +486,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     log = result.log
     rate = f"{log.success_rate:.1%}" if log.kept_seeds or log.failed_seeds else "n/a"
-    per_min = 60 * result.kept_now / max(result.seconds, 1e-9)
-    print(
-        f"{result.episodes} episodes in {result.root} (this run: {result.kept_now} kept, {result.failed_now} "
-        f"failed, {per_min:.1f} episodes/min); expert success over all seeds tried: {rate}"
-    )
+    if result.kept_now == 0 and result.failed_now == 0:
+        print(f"{result.episodes} episodes in {result.root}: already complete; expert success {rate}")
+    else:
+        per_min = 60 * result.kept_now / max(result.seconds, 1e-9)
+        print(
+            f"{result.episodes} episodes in {result.root} (this run: {result.kept_now} kept, "
+            f"{result.failed_now} failed, {per_min:.1f} episodes/min); expert success over all seeds tried: "
+            f"{rate}"
+        )
     if args.push_to_hub:
         push(recipe, result.root, private=args.private)
         print(f"pushed to https://huggingface.co/datasets/{recipe.repo_id}")
