@@ -6,8 +6,8 @@
 
 Only successful expert episodes are kept; failures are counted and reported. Seeds are tried in order from
 ``--seed``, so a dataset is reproducible from its command. Every finished episode is made durable on disk
-before the next one starts: Ctrl-C, a crash or a kill keeps all of them, and running the same command again
-resumes where the recording stopped.
+before the next one starts: Ctrl-C, a crash or a kill keeps all of them (an episode a kill interrupts while it
+is being written is undone), and running the same command again resumes where the recording stopped.
 """
 
 from __future__ import annotations
@@ -171,7 +171,7 @@ class RecordingLog:
     kept_seeds: list[int] = field(default_factory=list)
     failed_seeds: list[int] = field(default_factory=list)
     pending_seed: int | None = None
-    """Seed of the episode being written: if a kill lands between the write and the log, it is recovered."""
+    """Seed of the episode being written: set while LeRobot writes it, so that a kill half-way is undone."""
     seconds: float = 0.0
 
     @property
@@ -225,6 +225,47 @@ def _terminate_as_interrupt(signum, _frame):
     raise KeyboardInterrupt
 
 
+# ---------------------------------------------------------------------------- undoing a half-written episode
+PENDING = "actionflow_pending"
+"""Folder under ``meta/`` holding what an episode write may change; present only while one is written."""
+RESTORED = ("meta/info.json", "meta/stats.json", "meta/tasks.parquet")
+
+
+def _begin_episode(root: Path) -> None:
+    """Note what is on disk before an episode is written, so that a kill half-way through can be undone."""
+    pending = root / "meta" / PENDING
+    shutil.rmtree(pending, ignore_errors=True)
+    pending.mkdir()
+    for rel in RESTORED:
+        if (root / rel).is_file():
+            shutil.copy2(root / rel, pending / Path(rel).name)
+    files = sorted(
+        p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file() and PENDING not in p.parts
+    )
+    tmp = pending / "files.tmp"
+    tmp.write_text(json.dumps(files))
+    tmp.replace(pending / "files.json")  # written last: its presence means the snapshot is complete
+
+
+def _end_episode(root: Path) -> None:
+    shutil.rmtree(root / "meta" / PENDING, ignore_errors=True)
+
+
+def _roll_back(root: Path) -> None:
+    """Remove every file an unfinished episode write added, and put LeRobot's metadata back as it was."""
+    pending = root / "meta" / PENDING
+    listing = pending / "files.json"
+    if listing.is_file():  # else the kill came before the write started: the dataset is untouched
+        keep = set(json.loads(listing.read_text())) | {f"meta/{LOG_NAME}"}
+        for path in list(root.rglob("*")):
+            if path.is_file() and PENDING not in path.parts and path.relative_to(root).as_posix() not in keep:
+                path.unlink()
+        for rel in RESTORED:
+            if (pending / Path(rel).name).is_file():
+                shutil.copy2(pending / Path(rel).name, root / rel)
+    shutil.rmtree(pending, ignore_errors=True)
+
+
 # ---------------------------------------------------------------------------- recording
 @dataclass
 class RecordResult:
@@ -253,11 +294,13 @@ def _open_dataset(recipe: Recipe, root: Path, features: dict):
                 f"{root} holds a different recording ({'; '.join(diff)}); choose another --root or "
                 "--repo-id, or delete it"
             )
+        if log.pending_seed is not None:  # killed while an episode was written: undo it, it is recorded again
+            _roll_back(root)
+            log.pending_seed = None
+            log.save(root)
+        _end_episode(root)  # (killed after the episode was logged: only the note of the write is left)
         info = json.loads((root / "meta" / "info.json").read_text())
         done = int(info.get("total_episodes", 0))
-        if log.pending_seed is not None and done == len(log.kept_seeds) + 1:
-            log.kept_seeds.append(log.pending_seed)  # killed after the episode was durable, before the log
-        log.pending_seed = None
         if done != len(log.kept_seeds):
             raise RuntimeError(
                 f"{root}: the dataset has {done} episodes but its recording log lists {len(log.kept_seeds)}; "
@@ -328,6 +371,7 @@ def record(recipe: Recipe, root: str | Path | None = None, progress: bool = True
                 bar.set_postfix(failures=len(log.failed_seeds))
                 continue
             with _deferred_interrupts():
+                _begin_episode(root)
                 log.pending_seed = seed
                 log.save(root)
                 for frame in frames:
@@ -340,6 +384,7 @@ def record(recipe: Recipe, root: str | Path | None = None, progress: bool = True
                 log.seconds += time.time() - start
                 start = time.time()
                 log.save(root)
+                _end_episode(root)
             kept_now += 1
             bar.update(1)
             if len(log.kept_seeds) < recipe.episodes:

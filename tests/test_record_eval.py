@@ -151,6 +151,56 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path):
     np.testing.assert_array_equal(full[0]["action"].numpy(), partial[0]["action"].numpy())
 
 
+KILL_DURING_SECOND_EPISODE = """
+import os, sys
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot_actionflow.record import Recipe, record
+
+save = LeRobotDataset.save_episode
+calls = []
+
+def save_then_die(self, *args, **kwargs):
+    calls.append(1)
+    save(self, *args, **kwargs)
+    if len(calls) == 2:
+        os._exit(9)  # killed with the episode's files written but not finalised: no parquet footers
+
+LeRobotDataset.save_episode = save_then_die
+record(Recipe(task="Stack", variant="D0", episodes=3, repo_id="local/kill"), root=sys.argv[1], progress=False)
+"""
+
+
+def test_a_kill_while_an_episode_is_written_is_undone_on_resume(tmp_path):
+    """A hard kill (no Python cleanup) in the middle of writing episode 2 leaves a parquet file without its
+    footer, which LeRobot cannot load; the rerun removes it, restores LeRobot's metadata, records that seed
+    again and ends with a valid dataset, equal to one recorded without the kill."""
+    root = tmp_path / "kill"
+    res = subprocess.run(
+        [sys.executable, "-c", KILL_DURING_SECOND_EPISODE, str(root)],
+        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 9, res.stderr[-2000:]
+    half_written = root / "data" / "chunk-000" / "file-001.parquet"
+    assert half_written.is_file() and half_written.read_bytes()[-4:] != b"PAR1"  # no parquet footer
+    log = json.loads((root / "meta" / LOG_NAME).read_text())
+    assert log["kept_seeds"] == [0] and log["pending_seed"] == 1
+    recipe = Recipe(task="Stack", variant="D0", episodes=3, repo_id="local/kill")
+    result = record(recipe, root=root, progress=False)
+    assert result.episodes == 3 and result.log.kept_seeds == [0, 1, 2]
+    assert not (root / "meta" / "actionflow_pending").exists()
+    ds = LeRobotDataset("local/kill", root=root)
+    assert ds.num_episodes == 3 and len(ds) == sum(ds.meta.episodes["length"])
+    assert [int(e) for e in ds.meta.episodes["episode_index"]] == [0, 1, 2]
+    ref_recipe = Recipe(task="Stack", variant="D0", episodes=3, repo_id="local/ref")
+    reference = record(ref_recipe, root=tmp_path / "ref", progress=False)
+    assert reference.episodes == 3
+    ref = LeRobotDataset("local/ref", root=tmp_path / "ref")
+    np.testing.assert_array_equal(
+        np.stack([ds[i]["action"].numpy() for i in range(len(ds))]),
+        np.stack([ref[i]["action"].numpy() for i in range(len(ref))]),
+    )
+
+
 def test_lerobot_eval_runs_a_checkpoint_through_env_type_actionflow(checkpoint, tmp_path):
     out = tmp_path / "eval"
     cmd = [
