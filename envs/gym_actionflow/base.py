@@ -325,8 +325,9 @@ class ManipulationEnv(gym.Env):
         return obs
 
     # ------------------------------------------------------------------ rendering
-    def _render_camera(self, camera: str, height: int, width: int) -> np.ndarray:
-        key = f"{camera}:{height}x{width}"
+    def _renderer(self, height: int, width: int, depth: bool = False) -> mujoco.Renderer:
+        """A cached offscreen renderer of this size (and kind), freed by close() or at exit."""
+        key = f"{'depth' if depth else 'rgb'}:{height}x{width}"
         renderer = self._renderers.get(key)
         if renderer is None:
             try:
@@ -336,12 +337,18 @@ class ManipulationEnv(gym.Env):
                     f"offscreen rendering failed ({err}). Set MUJOCO_GL=egl (or osmesa) in the environment, "
                     "or import gym_actionflow before mujoco, so MuJoCo picks a headless GL backend."
                 ) from err
+            if depth:
+                renderer.enable_depth_rendering()
             self._renderers[key] = renderer
             if self._exit_hook is None:
                 # Free GL contexts at exit before MuJoCo's own EGL shutdown hook (registered earlier, so it
                 # runs later), even when close() is never called; otherwise EGL errors are printed at exit.
                 self._exit_hook = functools.partial(_close_renderers, self._renderers)
                 atexit.register(self._exit_hook)
+        return renderer
+
+    def _render_camera(self, camera: str, height: int, width: int) -> np.ndarray:
+        renderer = self._renderer(height, width)
         renderer.update_scene(self.data, camera=camera)
         return renderer.render().copy()
 

@@ -48,6 +48,8 @@ class ScriptedExpert:
             raise ValueError(f"noise={noise}; expected >= 0")
         self.noise = float(noise)
         self.rng = np.random.default_rng(seed)
+        self.jitter_scale = 1.0
+        """Scales the per-step jitter: a script lowers it for phases with little clearance (reset: 1)."""
         self._plan: Iterator[np.ndarray] | None = None
         self._last: np.ndarray | None = None
 
@@ -59,6 +61,7 @@ class ScriptedExpert:
         pos, rot = self.env.tcp_pose()
         self.cmd_pos, self.cmd_rot = pos, rot
         self.grip = OPEN
+        self.jitter_scale = 1.0
         self._plan = self.script()
         self._last = None
 
@@ -90,9 +93,10 @@ class ScriptedExpert:
 
     def _action(self, jitter: bool = True) -> np.ndarray:
         pos, rot = self.cmd_pos, self.cmd_rot
-        if jitter and self.noise > 0:
-            pos = pos + self.rng.normal(0.0, JITTER_POS * self.noise, 3)
-            rot = rot @ axis_angle_matrix(self.rng.normal(0.0, JITTER_ROT * self.noise, 3))
+        scale = self.noise * self.jitter_scale
+        if jitter and scale > 0:
+            pos = pos + self.rng.normal(0.0, JITTER_POS * scale, 3)
+            rot = rot @ axis_angle_matrix(self.rng.normal(0.0, JITTER_ROT * scale, 3))
         return np.concatenate([pose9(pos, rot), [self.grip]]).astype(np.float32)
 
     def move_to(

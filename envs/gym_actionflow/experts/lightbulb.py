@@ -58,9 +58,6 @@ class LightbulbExpert(ScriptedExpert):
     tests)."""
 
     env: LightbulbEnv
-    fine = False
-    """True while the bulb is aligned, inserted and turned: the per-step jitter is scaled by
-    ``FINE_JITTER``."""
 
     def __init__(self, env: gym.Env, noise: float = 0.0, seed: int | None = None,
                  insertion_offset=None) -> None:
@@ -69,18 +66,8 @@ class LightbulbExpert(ScriptedExpert):
         self.insertion_offset = np.asarray(offset, dtype=float)
 
     def reset(self, seed: int | None = None) -> None:
-        self.fine = False
         super().reset(seed)
         self.grip = CLOSE  # the bulb starts in the hand: keep holding it
-
-    def _action(self, jitter: bool = True) -> np.ndarray:
-        if not self.fine:
-            return super()._action(jitter)
-        noise, self.noise = self.noise, self.noise * FINE_JITTER
-        try:
-            return super()._action(jitter)
-        finally:
-            self.noise = noise
 
     # ------------------------------------------------------------------ measurements
     def bulb_pose(self) -> tuple[np.ndarray, np.ndarray]:
@@ -105,9 +92,9 @@ class LightbulbExpert(ScriptedExpert):
         seat = seat + np.append(self.offset(SEAT_OFFSET)[:2], 0.0)
         for attempt in range(MAX_TRIES):
             grasp = self.in_hand()  # re-read how the bulb sits in the hand after the transit / a retry
-            self.fine = False
+            self.jitter_scale = 1.0
             yield from self.move_to(*tcp_for_object(seat + [0, 0, PRE_ENTRY], entry_rot, grasp), speed=0.01)
-            self.fine = True
+            self.jitter_scale = FINE_JITTER
             yield from self.align(seat[:2], entry_yaw)
             seated = yield from self.insert(seat)
             if seated or attempt == MAX_TRIES - 1:

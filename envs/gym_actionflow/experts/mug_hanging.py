@@ -24,15 +24,13 @@ import numpy as np
 from gym_actionflow.base import TABLE_TOP
 from gym_actionflow.experts.base import (
     CLOSE,
-    JITTER_POS,
-    JITTER_ROT,
     OPEN,
     ScriptedExpert,
     symmetric_yaw,
     tcp_for_object,
     top_down,
 )
-from gym_actionflow.geometry import axis_angle_matrix, pose9, pose9_to_rt, yaw_of
+from gym_actionflow.geometry import pose9_to_rt, yaw_of
 from gym_actionflow.tasks.mug_hanging import (
     HOLE_CENTER,
     MUG_HEIGHT,
@@ -71,19 +69,10 @@ class MugHangingExpert(ScriptedExpert):
     def reset(self, seed: int | None = None) -> None:
         super().reset(seed)
         self.obs = None
-        self.jitter_scale = 1.0
 
     def act(self, observation=None) -> np.ndarray:
         self.obs = observation
         return super().act(observation)
-
-    def _action(self, jitter: bool = True) -> np.ndarray:
-        pos, rot = self.cmd_pos, self.cmd_rot
-        scale = self.noise * self.jitter_scale
-        if jitter and scale > 0:
-            pos = pos + self.rng.normal(0.0, JITTER_POS * scale, 3)
-            rot = rot @ axis_angle_matrix(self.rng.normal(0.0, JITTER_ROT * scale, 3))
-        return np.concatenate([pose9(pos, rot), [self.grip]]).astype(np.float32)
 
     # ------------------------------------------------------------------ perception
     def _token(self, index: int) -> tuple[np.ndarray, np.ndarray] | None:

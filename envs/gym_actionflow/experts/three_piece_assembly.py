@@ -39,22 +39,6 @@ clearance."""
 
 
 class ThreePieceAssemblyExpert(ScriptedExpert):
-    fine = False
-    """True while a piece is being inserted: the per-step jitter is scaled by ``FINE_JITTER``."""
-
-    def reset(self, seed: int | None = None) -> None:
-        self.fine = False
-        super().reset(seed)
-
-    def _action(self, jitter: bool = True) -> np.ndarray:
-        if not self.fine:
-            return super()._action(jitter)
-        noise, self.noise = self.noise, self.noise * FINE_JITTER
-        try:
-            return super()._action(jitter)
-        finally:
-            self.noise = noise
-
     def pick(self, name: str, height: float, closing_yaw: float):
         """Grasp ``name`` by its handle (top at ``height`` above the body origin), closing along
         ``closing_yaw`` (modulo pi), and lift it to the transit height."""
@@ -89,7 +73,7 @@ class ThreePieceAssemblyExpert(ScriptedExpert):
         yield from self.move_to(*tcp_for_object(target + [0, 0, above], target_rot, in_hand), speed=0.012)
         # Closed loop on the piece itself: average its xy error over a few steps and shift the hand to cancel
         # it (grasp offsets and in-hand tilt would otherwise add up to more than the clearance).
-        self.fine = True  # a steadier hand for the insertion itself
+        self.jitter_scale = FINE_JITTER  # a steadier hand for the insertion itself
         for _ in range(SERVO_ROUNDS):
             error = np.zeros(2)
             for _ in range(SERVO_STEPS):
@@ -101,7 +85,7 @@ class ThreePieceAssemblyExpert(ScriptedExpert):
         at_pos = self.cmd_pos - [0, 0, above]
         yield from self.move_to(at_pos, self.cmd_rot, speed=0.006)
         yield from self.set_gripper(OPEN, steps=6)
-        self.fine = False
+        self.jitter_scale = 1.0
         yield from self.move_to(at_pos + [0, 0, 0.08], self.cmd_rot, speed=0.015)
 
     def script(self):

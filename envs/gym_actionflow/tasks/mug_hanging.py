@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import atexit
-import functools
 import time
 
 import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from gym_actionflow.base import POSITION_BOUND, TABLE_TOP, ManipulationEnv, _close_renderers
+from gym_actionflow.base import POSITION_BOUND, TABLE_TOP, ManipulationEnv
 from gym_actionflow.geometry import yaw_quat
 from gym_actionflow.placement import Region
 from gym_actionflow.point_cloud import (
@@ -309,27 +307,9 @@ class MugHangingEnv(ManipulationEnv):
         self.model.body_quat[self.hanger_id] = yaw_quat(yaw)
 
     # ------------------------------------------------------------------ point cloud
-    def _depth_renderer(self) -> mujoco.Renderer:
-        key = f"depth:{HOVER_SIZE}x{HOVER_SIZE}"
-        renderer = self._renderers.get(key)
-        if renderer is None:
-            try:
-                renderer = mujoco.Renderer(self.model, height=HOVER_SIZE, width=HOVER_SIZE)
-            except mujoco.FatalError as err:
-                raise RuntimeError(
-                    f"offscreen depth rendering failed ({err}). Set MUJOCO_GL=egl (or osmesa), or import "
-                    "gym_actionflow before mujoco, so MuJoCo picks a headless GL backend."
-                ) from err
-            renderer.enable_depth_rendering()
-            self._renderers[key] = renderer
-            if self._exit_hook is None:  # as in ManipulationEnv._render_camera: free GL contexts at exit
-                self._exit_hook = functools.partial(_close_renderers, self._renderers)
-                atexit.register(self._exit_hook)
-        return renderer
-
     def hover_points(self) -> np.ndarray:
         """All back-projected world points (M, 3) of the seven hovering depth views of the current state."""
-        renderer = self._depth_renderer()
+        renderer = self._renderer(HOVER_SIZE, HOVER_SIZE, depth=True)
         far = self.model.vis.map.zfar * self.model.stat.extent
         clouds = []
         for cam in self.hover_cams:
