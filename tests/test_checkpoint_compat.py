@@ -1,0 +1,46 @@
+"""Checkpoints saved by earlier versions keep loading and acting the same: the fixtures under tests/fixtures
+were written by make_policy_fixtures.py before the policy was split into a policy over a model."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from fixtures.make_policy_fixtures import CHECKPOINTS, KEY_CONFIGS, LOSS_SEED, SAMPLE_SEED, config
+from safetensors.torch import load_file
+
+from lerobot_actionflow import ActionFlowPolicy
+
+FIXTURES = Path(__file__).parent / "fixtures"
+OBS_KEYS = ("observation.token_poses", "observation.token_features")
+
+
+@pytest.mark.parametrize("name", sorted(CHECKPOINTS))
+def test_old_checkpoint_loads_every_weight_and_gives_the_same_actions_and_loss(name):
+    """Guards against a refactor that renames a parameter (from_pretrained only logs missing keys, so such a
+    checkpoint would load with random weights) or changes the sampler's or the loss's arithmetic."""
+    path = FIXTURES / f"policy_{name}"
+    policy = ActionFlowPolicy.from_pretrained(path)
+    assert set(policy.state_dict()) == set(load_file(path / "model.safetensors"))
+    expected = load_file(path / "expected.safetensors")
+    torch.manual_seed(SAMPLE_SEED)
+    chunk = policy.predict_action_chunk({k: expected[k] for k in OBS_KEYS})
+    # CPU float reductions may be split differently with another thread count: equal to float32 rounding.
+    torch.testing.assert_close(chunk, expected["chunk"], atol=1e-5, rtol=0)
+    policy.train()
+    torch.manual_seed(LOSS_SEED)
+    batch = {k: v for k, v in expected.items() if k not in ("chunk", "loss")}
+    loss, _ = policy.forward(batch)
+    torch.testing.assert_close(loss.reshape(1), expected["loss"], atol=1e-6, rtol=1e-5)
+
+
+def test_state_dict_keys_and_shapes_are_unchanged():
+    """Every architecture, action space and input modality keeps the parameter names and shapes that saved
+    checkpoints hold."""
+    expected = json.loads((FIXTURES / "state_dict_keys.json").read_text())
+    assert set(expected) == set(KEY_CONFIGS)
+    for name, overrides in KEY_CONFIGS.items():
+        state = ActionFlowPolicy(config(**overrides)).state_dict()
+        assert {k: list(v.shape) for k, v in state.items()} == expected[name], name
