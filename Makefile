@@ -18,7 +18,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: $(VENV)/.installed
-	$(PY) -m lerobot_actionflow.demo
+	$(PY) -m lerobot_actionflow.tools.demo
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check .

@@ -18,7 +18,7 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy
-from lerobot_actionflow import geometry as g
+from lerobot_actionflow.core import geometry as g
 
 N_TOKENS, N_FEATURES = 6, 8
 

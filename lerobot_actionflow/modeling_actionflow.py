@@ -18,8 +18,6 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION
 from torch import Tensor
 
-from lerobot_actionflow import geometry as g
-from lerobot_actionflow.adaptation import EEFFrame
 from lerobot_actionflow.configuration_actionflow import (
     POINT_CLOUD,
     POSE_DIM,
@@ -28,8 +26,10 @@ from lerobot_actionflow.configuration_actionflow import (
     TOKEN_POSES,
     ActionFlowConfig,
 )
-from lerobot_actionflow.flow import EuclideanFlow, SE3Flow, SE3State, integrate, time_grid
-from lerobot_actionflow.network import ActionFlowNetwork, NetworkSpec, SceneTokens
+from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.adaptation import EEFFrame
+from lerobot_actionflow.core.flow import EuclideanFlow, SE3Flow, SE3State, integrate, time_grid
+from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
 
 GRIPPER_DIM = 1
 

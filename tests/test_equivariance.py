@@ -5,8 +5,8 @@ import torch
 from helpers import make_config, random_se3, transform_pose9
 
 from lerobot_actionflow import ActionFlowPolicy
-from lerobot_actionflow import geometry as g
-from lerobot_actionflow.ipa import InvariantPointAttention, SE3InvariantTransformer
+from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.ipa import InvariantPointAttention, SE3InvariantTransformer
 
 
 def _frames(b: int, n: int, seed: int):

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from lerobot_actionflow import geometry as g
-from lerobot_actionflow.flow import EuclideanFlow, SE3Flow, SE3State, integrate, time_grid
+from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.flow import EuclideanFlow, SE3Flow, SE3State, integrate, time_grid
 
 f64 = torch.float64
 B, H, M = 4, 16, 2

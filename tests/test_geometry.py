@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from lerobot_actionflow import geometry as g
+from lerobot_actionflow.core import geometry as g
 
 f64 = torch.float64
 

@@ -1,12 +1,12 @@
 """The policy really learns: a few hundred CPU steps on a tiny synthetic dataset whose actions depend on
 the object poses bring sampled actions within 1 cm / 0.05 rad of the expert's."""
 
+import synthetic as syn
 import torch
 from helpers import make_config
 
 from lerobot_actionflow import ActionFlowPolicy
-from lerobot_actionflow import geometry as g
-from lerobot_actionflow import synthetic as syn
+from lerobot_actionflow.core import geometry as g
 
 OBS_KEYS = ("observation.token_poses", "observation.token_features")
 

@@ -6,12 +6,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import synthetic as syn
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_pre_post_processors
 
 from lerobot_actionflow import ActionFlowPolicy
-from lerobot_actionflow import synthetic as syn
 
 REPO_ID = "local/actionflow_synthetic_reach"
 

@@ -1,12 +1,12 @@
 """ActionFlowPolicy behaviour: construction, persistence, input validation, the action queue, processors."""
 
 import pytest
+import synthetic as syn
 import torch
 from helpers import make_config
 
 from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, make_actionflow_pre_post_processors
-from lerobot_actionflow import geometry as g
-from lerobot_actionflow import synthetic as syn
+from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.modeling_actionflow import smooth_action
 
 OBS_KEYS = ("observation.token_poses", "observation.token_features")

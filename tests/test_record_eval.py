@@ -252,7 +252,7 @@ def test_rerun_recording_is_written_and_reads_back(checkpoint, tmp_path):
     from rerun.error_utils import RerunWarning
 
     from lerobot_actionflow import ActionFlowPolicy
-    from lerobot_actionflow.visualize import record_rollout
+    from lerobot_actionflow.tools.visualize import record_rollout
 
     policy = ActionFlowPolicy.from_pretrained(checkpoint)
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))

@@ -30,7 +30,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from lerobot_actionflow import geometry as g
+from lerobot_actionflow.core import geometry as g
 
 
 @dataclass

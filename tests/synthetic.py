@@ -1,8 +1,8 @@
 """A small synthetic token task: the end effector must reach a grasp pose defined in a target object's
 frame, ignore a distractor, and close the gripper there.
 
-It needs no simulator, so it trains in minutes on a CPU and has an exact expert; it is what the demo and the
-learning tests use until the simulated task suite is available. Tokens follow the project schema:
+A test fixture: it needs no simulator, so it trains in minutes on a CPU and has an exact expert; the fast
+learning tests and the ``lerobot-train`` command test use it. Tokens follow the project schema:
 
 | token | pose | feature (F = 4) |
 |---|---|---|
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lerobot_actionflow import geometry as g
+from lerobot_actionflow.core import geometry as g
 
 NUM_TOKENS = 3
 FEATURE_DIM = 4

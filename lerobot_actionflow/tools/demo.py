@@ -1,7 +1,7 @@
 """The main job: record expert demonstrations of a gym_actionflow task, train ActionFlow on them with
 ``lerobot-train``, evaluate it with ``lerobot-eval``, and save a 3D rerun recording of one evaluation rollout.
 
-    python -m lerobot_actionflow.demo [--task Stack] [--episodes 100] [--steps 2000] [--output-dir DIR]
+    python -m lerobot_actionflow.tools.demo [--task Stack] [--episodes 100] [--steps 2000] [--output-dir DIR]
 
 Every step is a standard tool a LeRobot user already knows, run as a command (printed before it runs):
 ``actionflow-record`` writes a LeRobotDataset, ``lerobot-train --policy.type=actionflow`` trains,
@@ -100,10 +100,10 @@ def main(argv: list[str] | None = None) -> None:
 
     t = time.time()
     rrd = out / "rollout.rrd"
-    from lerobot_actionflow.visualize import main as visualize
+    from lerobot_actionflow.tools.visualize import main as visualize
 
     print(
-        f"\n$ python -m lerobot_actionflow.visualize {ckpt} --task {args.task}-v0 --seed {EVAL_SEED}",
+        f"\n$ python -m lerobot_actionflow.tools.visualize {ckpt} --task {args.task}-v0 --seed {EVAL_SEED}",
         flush=True,
     )
     visualize([str(ckpt), "--task", f"{args.task}-v0", "--variant", args.variant,

@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lerobot_actionflow import geometry as g
+from lerobot_actionflow.core import geometry as g
 
 
 class InvariantPointAttention(nn.Module):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from lerobot_actionflow import geometry as g
+from lerobot_actionflow.core import geometry as g
 
 
 class EEFFrame:

@@ -1,7 +1,7 @@
 """Record one closed-loop rollout of a trained ActionFlow checkpoint as a rerun recording (``.rrd``).
 
-    python -m lerobot_actionflow.visualize outputs/train/.../pretrained_model --task Stack-v0 --seed 1000 \\
-        --out rollout.rrd
+    python -m lerobot_actionflow.tools.visualize outputs/train/.../pretrained_model --task Stack-v0 \\
+        --seed 1000 --out rollout.rrd
     rerun rollout.rrd          # or: python -m rerun rollout.rrd
 
 What is logged, on the timeline ``step`` (20 Hz control steps):

@@ -1,10 +1,10 @@
 """The velocity network: observation and action tokens in, one velocity per action step out.
 
-It sees only tensors already brought into the scaled EEF frame by :mod:`lerobot_actionflow.adaptation`.
+It sees only tensors already brought into the scaled EEF frame by :mod:`lerobot_actionflow.core.adaptation`.
 Three architectures, selected by ``ActionFlowConfig.architecture`` (paper ablations):
 
 * ``"ipa"`` (A.1): every entity is a token with a pose; IPA blocks then a transformer encoder
-  (:class:`~lerobot_actionflow.ipa.SE3InvariantTransformer`).
+  (:class:`~lerobot_actionflow.core.ipa.SE3InvariantTransformer`).
 * ``"multi_token"`` (A.2): the same tokens, their poses embedded into the features by a linear layer,
   a plain transformer encoder (no IPA).
 * ``"single_token"`` (A.3): all observation tokens concatenated into one conditioning token, plus the
@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from lerobot_actionflow import geometry as g
-from lerobot_actionflow.adaptation import squash
-from lerobot_actionflow.encoders import ImageEncoder, PointCloudEncoder, VectorEncoder
-from lerobot_actionflow.ipa import SE3InvariantTransformer, transformer_encoder
+from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.adaptation import squash
+from lerobot_actionflow.core.encoders import ImageEncoder, PointCloudEncoder, VectorEncoder
+from lerobot_actionflow.core.ipa import SE3InvariantTransformer, transformer_encoder
 
 
 @dataclass
