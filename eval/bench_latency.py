@@ -15,9 +15,8 @@ import time
 from pathlib import Path
 
 import torch
-from lerobot.configs.types import FeatureType, PolicyFeature
 
-from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy
+from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, schema
 from lerobot_actionflow.core import geometry as g
 
 N_TOKENS, N_FEATURES = 6, 8
@@ -25,11 +24,8 @@ N_TOKENS, N_FEATURES = 6, 8
 
 def build(device: str, architecture: str, k: int) -> ActionFlowPolicy:
     cfg = ActionFlowConfig(device=device, architecture=architecture, num_inference_steps=k)
-    cfg.input_features = {
-        "observation.token_poses": PolicyFeature(FeatureType.STATE, (N_TOKENS, 9)),
-        "observation.token_features": PolicyFeature(FeatureType.STATE, (N_TOKENS, N_FEATURES)),
-    }
-    cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (10,))}
+    shapes = schema.token_shapes(N_TOKENS, N_FEATURES)
+    cfg.input_features, cfg.output_features = schema.policy_features(shapes)
     return ActionFlowPolicy(cfg).to(device).eval()
 
 
@@ -37,13 +33,13 @@ def observation(device: str) -> dict[str, torch.Tensor]:
     rot = g.random_rotation((1, 2, N_TOKENS))
     poses = g.rt_to_pose9(rot, torch.randn(1, 2, N_TOKENS, 3) * 0.2)
     return {
-        "observation.token_poses": poses.to(device),
-        "observation.token_features": torch.randn(1, 2, N_TOKENS, N_FEATURES, device=device),
+        schema.TOKEN_POSES: poses.to(device),
+        schema.TOKEN_FEATURES: torch.randn(1, 2, N_TOKENS, N_FEATURES, device=device),
     }
 
 
 def time_chunk(policy: ActionFlowPolicy, obs: dict, calls: int, warmup: int) -> list[float]:
-    sync = torch.cuda.synchronize if obs["observation.token_poses"].is_cuda else (lambda: None)
+    sync = torch.cuda.synchronize if obs[schema.TOKEN_POSES].is_cuda else (lambda: None)
     times = []
     with torch.inference_mode():
         for i in range(warmup + calls):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from gym_actionflow import TASKS
 
-from lerobot_actionflow.record import Recipe, record
+from lerobot_actionflow.tools.record import Recipe, record
 
 RESULTS = Path(__file__).parent / "results" / "record_cpu.md"
 

@@ -8,11 +8,15 @@ from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig, CosineDecayWithWarmupSchedulerConfig
 
-TOKEN_POSES = "observation.token_poses"
-TOKEN_FEATURES = "observation.token_features"
-POINT_CLOUD = "observation.point_cloud"
-POSE_DIM = 9  # [x, y, z, r00, r10, r20, r01, r11, r21]
-POSE_LAYOUT = "[x, y, z, r00, r10, r20, r01, r11, r21]"
+from lerobot_actionflow.schema import (
+    ACTION,
+    ACTION_DIM,
+    POINT_CLOUD,
+    POSE_DIM,
+    POSE_LAYOUT,
+    TOKEN_FEATURES,
+    TOKEN_POSES,
+)
 
 ARCHITECTURES = ("ipa", "multi_token", "single_token")
 ACTION_SPACES = ("se3", "euclidean")
@@ -172,13 +176,13 @@ class ActionFlowConfig(PreTrainedConfig):
         for key, ft in self.image_features.items():
             if len(ft.shape) != 3 or ft.shape[0] != 3:
                 raise ValueError(f"{key} has shape {tuple(ft.shape)}; expected a (3, H, W) RGB image")
-        action = (self.output_features or {}).get("action")
+        action = (self.output_features or {}).get(ACTION)
         if action is None or action.type != FeatureType.ACTION:
             raise ValueError(
                 f"ActionFlow needs an 'action' output feature (got {sorted(self.output_features or {})}); "
                 "expected shape (10,): target EEF pose (9) + gripper command"
             )
-        if tuple(action.shape) != (POSE_DIM + 1,):
+        if tuple(action.shape) != (ACTION_DIM,):
             raise ValueError(
                 f"action has shape {tuple(action.shape)}; expected (10,): target EEF pose {POSE_LAYOUT} "
                 "+ gripper command in [-1, 1]"

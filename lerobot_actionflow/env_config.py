@@ -4,36 +4,27 @@
         --env.task=StackThree-v0 --env.variant=D1 --eval.n_episodes=50 --eval.batch_size=10
 
 ``--env.task`` is the task's id without the ``gym_actionflow/`` prefix (``StackThree-v0``, ...); LeRobot makes
-``gym_actionflow/<task>``. Features follow the token schema: env key -> policy key.
+``gym_actionflow/<task>``. Features follow the token schema (:mod:`lerobot_actionflow.schema`): env key ->
+policy key.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.configs import PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
-# Env observation key -> LeRobot key (the mapping lerobot-eval's observation preprocessing applies).
-FEATURES_MAP = {
-    "action": "action",
-    "agent_pos": "observation.state",
-    "environment_state": "observation.environment_state",
-    "token_poses": "observation.token_poses",
-    "token_features": "observation.token_features",
-    "point_cloud": "observation.point_cloud",
-    "pixels/wrist": "observation.images.wrist",
-}
+from lerobot_actionflow import schema
 
 
 def _task_spec(task: str):
-    from gym_actionflow import TASKS
+    from gym_actionflow import find_task
 
-    for spec in TASKS:
-        if task in (spec.name, f"{spec.name}-v0", spec.env_id):
-            return spec
-    known = ", ".join(f"{spec.name}-v0" for spec in TASKS)
-    raise ValueError(f"--env.task={task!r} is not a gym_actionflow task; expected one of: {known}")
+    try:
+        return find_task(task)
+    except ValueError as err:
+        raise ValueError(f"--env.task={task!r} is not a gym_actionflow task ({err})") from None
 
 
 @EnvConfig.register_subclass("actionflow")
@@ -50,7 +41,7 @@ class ActionFlowEnvConfig(EnvConfig):
     hanger_obs: str | None = None
     """MugHanging only: ``pose`` or ``point_cloud``."""
     features: dict[str, PolicyFeature] = field(default_factory=dict)
-    features_map: dict[str, str] = field(default_factory=lambda: dict(FEATURES_MAP))
+    features_map: dict[str, str] = field(default_factory=lambda: dict(schema.FEATURES_MAP))
 
     def __post_init__(self) -> None:
         spec = _task_spec(self.task)
@@ -71,21 +62,9 @@ class ActionFlowEnvConfig(EnvConfig):
         import gymnasium as gym
 
         env = gym.make(spec.env_id, **self.gym_kwargs)
-        space = env.observation_space
+        shapes = schema.observation_shapes(env.observation_space)
         env.close()
-        features = {
-            "action": PolicyFeature(type=FeatureType.ACTION, shape=(10,)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=space["agent_pos"].shape),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=space["environment_state"].shape),
-            "token_poses": PolicyFeature(type=FeatureType.STATE, shape=space["token_poses"].shape),
-            "token_features": PolicyFeature(type=FeatureType.STATE, shape=space["token_features"].shape),
-        }
-        if "point_cloud" in space.spaces:
-            features["point_cloud"] = PolicyFeature(type=FeatureType.STATE, shape=space["point_cloud"].shape)
-        if "pixels" in space.spaces:
-            shape = space["pixels"]["wrist"].shape
-            features["pixels/wrist"] = PolicyFeature(type=FeatureType.VISUAL, shape=shape)
-        return features
+        return schema.env_features(shapes)
 
     @property
     def gym_kwargs(self) -> dict:

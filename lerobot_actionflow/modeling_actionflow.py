@@ -15,23 +15,23 @@ from collections import deque
 
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot.utils.constants import ACTION
 from torch import Tensor
 
-from lerobot_actionflow.configuration_actionflow import (
+from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
+from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.adaptation import EEFFrame
+from lerobot_actionflow.core.flow import EuclideanFlow, SE3Flow, SE3State, integrate, time_grid
+from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
+from lerobot_actionflow.schema import (
+    ACTION,
+    ACTION_DIM,
+    GRIPPER_DIM,
     POINT_CLOUD,
     POSE_DIM,
     POSE_LAYOUT,
     TOKEN_FEATURES,
     TOKEN_POSES,
-    ActionFlowConfig,
 )
-from lerobot_actionflow.core import geometry as g
-from lerobot_actionflow.core.adaptation import EEFFrame
-from lerobot_actionflow.core.flow import EuclideanFlow, SE3Flow, SE3State, integrate, time_grid
-from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
-
-GRIPPER_DIM = 1
 
 
 class ActionFlowPolicy(PreTrainedPolicy):
@@ -162,7 +162,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
         if ACTION not in batch:
             raise ValueError(f"missing key {ACTION!r} for training; the batch has {sorted(batch)}")
         action = batch[ACTION]
-        if action.dim() != 3 or action.shape[1:] != (self.config.horizon, POSE_DIM + GRIPPER_DIM):
+        if action.dim() != 3 or action.shape[1:] != (self.config.horizon, ACTION_DIM):
             raise ValueError(
                 f"{ACTION} has shape {tuple(action.shape)}; expected (B, horizon={self.config.horizon}, 10): "
                 f"target EEF pose {POSE_LAYOUT} + gripper"

@@ -27,12 +27,8 @@ from lerobot.processor import (
 )
 from torch import Tensor
 
-from lerobot_actionflow.configuration_actionflow import (
-    POINT_CLOUD,
-    TOKEN_FEATURES,
-    TOKEN_POSES,
-    ActionFlowConfig,
-)
+from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
+from lerobot_actionflow.schema import POINT_CLOUD, TOKEN_FEATURES, TOKEN_POSES
 
 
 @dataclass

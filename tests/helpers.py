@@ -3,22 +3,20 @@
 from __future__ import annotations
 
 import torch
-from lerobot.configs.types import FeatureType, PolicyFeature
 
-from lerobot_actionflow import ActionFlowConfig
+from lerobot_actionflow import ActionFlowConfig, schema
 from lerobot_actionflow.core import geometry as g
 
 N_TOKENS, N_FEATURES = 3, 4
 
 
-def make_config(**overrides) -> ActionFlowConfig:
-    """A CPU ActionFlowConfig for the synthetic 3-token task; keyword arguments override fields."""
+def make_config(extra_inputs: dict[str, tuple[int, ...]] | None = None, **overrides) -> ActionFlowConfig:
+    """A CPU ActionFlowConfig for the synthetic 3-token task; keyword arguments override fields.
+
+    ``extra_inputs`` adds modalities by env key and shape, e.g. ``{"pixels/wrist": (16, 16, 3)}``."""
     cfg = ActionFlowConfig(device="cpu", **overrides)
-    cfg.input_features = {
-        "observation.token_poses": PolicyFeature(FeatureType.STATE, (N_TOKENS, 9)),
-        "observation.token_features": PolicyFeature(FeatureType.STATE, (N_TOKENS, N_FEATURES)),
-    }
-    cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (10,))}
+    shapes = schema.token_shapes(N_TOKENS, N_FEATURES) | (extra_inputs or {})
+    cfg.input_features, cfg.output_features = schema.policy_features(shapes)
     return cfg
 
 

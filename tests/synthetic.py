@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from lerobot_actionflow import schema
 from lerobot_actionflow.core import geometry as g
 
 NUM_TOKENS = 3
@@ -170,9 +171,9 @@ def training_windows(rollout: dict[str, Tensor], n_obs_steps: int, horizon: int)
     act_raw = frames[:, None] + torch.arange(horizon)  # [S, H]
     act_idx = act_raw.clamp(max=steps - 1)
     return {
-        "observation.token_poses": rollout["token_poses"][:, obs_idx].flatten(0, 1),
-        "observation.token_features": rollout["token_features"][:, obs_idx].flatten(0, 1),
-        "action": rollout["action"][:, act_idx].flatten(0, 1),
+        schema.TOKEN_POSES: rollout["token_poses"][:, obs_idx].flatten(0, 1),
+        schema.TOKEN_FEATURES: rollout["token_features"][:, obs_idx].flatten(0, 1),
+        schema.ACTION: rollout["action"][:, act_idx].flatten(0, 1),
         "action_is_pad": (act_raw > steps - 1).expand(b, -1, -1).flatten(0, 1),
     }
 
@@ -182,17 +183,7 @@ TASK_STRING = "reach the grasp pose above the target object and close the grippe
 
 def dataset_features() -> dict[str, dict]:
     """LeRobotDataset feature spec of the synthetic task, following the project's token schema."""
-    return {
-        "observation.token_poses": {"dtype": "float32", "shape": (NUM_TOKENS, 9), "names": None},
-        "observation.token_features": {"dtype": "float32", "shape": (NUM_TOKENS, FEATURE_DIM), "names": None},
-        "observation.state": {"dtype": "float32", "shape": (10,), "names": None},
-        "observation.environment_state": {
-            "dtype": "float32",
-            "shape": (9 * (NUM_TOKENS - 1),),
-            "names": None,
-        },
-        "action": {"dtype": "float32", "shape": (10,), "names": None},
-    }
+    return schema.dataset_features(schema.token_shapes(NUM_TOKENS, FEATURE_DIM))
 
 
 def write_dataset(root, repo_id: str, episodes: int, steps: int = 30, seed: int = 0, fps: int = 20):
@@ -213,16 +204,13 @@ def write_dataset(root, repo_id: str, episodes: int, steps: int = 30, seed: int 
         for i in range(steps):
             poses = rollout["token_poses"][ep, i]
             feats = rollout["token_features"][ep, i]
-            ds.add_frame(
-                {
-                    "observation.token_poses": poses.numpy(),
-                    "observation.token_features": feats.numpy(),
-                    "observation.state": state_vector(poses, feats).numpy(),
-                    "observation.environment_state": poses[1:].flatten().numpy(),
-                    "action": rollout["action"][ep, i].numpy(),
-                    "task": TASK_STRING,
-                }
-            )
+            obs = {
+                "token_poses": poses.numpy(),
+                "token_features": feats.numpy(),
+                "agent_pos": state_vector(poses, feats).numpy(),
+                "environment_state": poses[1:].flatten().numpy(),
+            }
+            ds.add_frame(schema.dataset_frame(obs, rollout["action"][ep, i].numpy(), TASK_STRING))
         ds.save_episode()
     ds.finalize()
     return ds
@@ -251,9 +239,9 @@ def evaluate_closed_loop(
     for _ in range(steps):
         poses, feats = observe(scene.with_eef(eef_rot, eef_trans), width)
         obs = {
-            "observation.token_poses": poses,
-            "observation.token_features": feats,
-            "observation.state": state_vector(poses, feats),
+            schema.TOKEN_POSES: poses,
+            schema.TOKEN_FEATURES: feats,
+            schema.STATE: state_vector(poses, feats),
         }
         action = select_action(obs).to(torch.float64)
         eef_rot, eef_trans = g.pose9_to_rt(action[:, :9])

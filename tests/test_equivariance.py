@@ -100,12 +100,8 @@ def test_policy_is_equivariant(architecture, action_space):
 def test_policy_with_image_and_point_cloud_tokens():
     """Wrist images (posed at the EEF) and a fixture point cloud (posed at its centroid) train, sample, and
     keep the policy equivariant when the cloud moves with the scene."""
-    from lerobot.configs.types import FeatureType, PolicyFeature
-
     torch.manual_seed(0)
-    cfg = make_config()
-    cfg.input_features["observation.images.wrist"] = PolicyFeature(FeatureType.VISUAL, (3, 16, 16))
-    cfg.input_features["observation.point_cloud"] = PolicyFeature(FeatureType.STATE, (32, 3))
+    cfg = make_config(extra_inputs={"pixels/wrist": (16, 16, 3), "point_cloud": (32, 3)})
     policy = ActionFlowPolicy(cfg).eval()
     obs = _observation(3, b=2)
     gen = torch.Generator().manual_seed(4)

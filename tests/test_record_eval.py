@@ -18,7 +18,7 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_actionflow.env_config import ActionFlowEnvConfig
-from lerobot_actionflow.record import LOG_NAME, Recipe, load_recipe, record
+from lerobot_actionflow.tools.record import LOG_NAME, Recipe, load_recipe, record
 
 REPO_ID = "local/stack_d0_test"
 LEROBOT_KEYS = {"timestamp", "frame_index", "episode_index", "index", "task_index", "task"}
@@ -154,7 +154,7 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path):
 KILL_DURING_SECOND_EPISODE = """
 import os, sys
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
-from lerobot_actionflow.record import Recipe, record
+from lerobot_actionflow.tools.record import Recipe, record
 
 save = LeRobotDataset.save_episode
 calls = []
@@ -312,7 +312,7 @@ def test_push_without_credentials_fails_before_recording(tmp_path):
 
 
 def test_dataset_card_tells_what_was_recorded_and_how(dataset):
-    from lerobot_actionflow.record import RecordingLog, dataset_card_text
+    from lerobot_actionflow.tools.record import RecordingLog, dataset_card_text
 
     log = RecordingLog.load(dataset)
     recipe = Recipe(**(log.recipe | {"episodes": 2}))

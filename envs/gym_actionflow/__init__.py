@@ -18,9 +18,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from gymnasium.envs.registration import register  # noqa: E402
 
 from gym_actionflow.experts import make_expert, run_episode  # noqa: E402
-from gym_actionflow.registry import TASKS  # noqa: E402
+from gym_actionflow.registry import TASKS, find_task  # noqa: E402
 
-__all__ = ["TASKS", "make_expert", "run_episode"]
+__all__ = ["TASKS", "find_task", "make_expert", "run_episode"]
 __version__ = "0.1.0"
 
 for _task in TASKS:

@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> None:
         except ImportError:
             parser.error("--video *.mp4 needs `pip install imageio-ffmpeg`; or write a .gif instead")
 
-    task = next(t for t in gym_actionflow.TASKS if t.name == args.task)
+    task = gym_actionflow.find_task(args.task)
     if args.variant is not None and args.variant not in task.variants:
         parser.error(f"--variant {args.variant}: {task.name} has variants {', '.join(task.variants)}")
     kwargs = {} if args.variant is None else task.kwargs(args.variant)

@@ -33,6 +33,15 @@ class TaskSpec:
         return {self.variant_kwarg: variant}
 
 
+def find_task(name: str) -> TaskSpec:
+    """The row of a task given by name (``Stack``), ``Name-v0`` or gym id (``gym_actionflow/Stack-v0``)."""
+    for task in TASKS:
+        if name in (task.name, f"{task.name}-v0", task.env_id):
+            return task
+    known = ", ".join(task.name for task in TASKS)
+    raise ValueError(f"unknown task {name!r}; gym_actionflow has: {known}")
+
+
 def load(entry_point: str) -> type:
     module, _, attr = entry_point.partition(":")
     return getattr(importlib.import_module(module), attr)

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lerobot_actionflow import schema
+
 CHUNK_COLOR = (255, 140, 0)
 PATH_COLOR = (40, 120, 255)
 
@@ -31,22 +33,6 @@ def _pose_rt(pose9: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     rot, pos = pose9_to_rt(pose9)
     return pos, rot
-
-
-def policy_observation(obs: dict) -> dict[str, torch.Tensor]:
-    """A single env observation as the batch of 1 that LeRobot's preprocessing gives the policy."""
-    batch = {
-        "observation.token_poses": obs["token_poses"],
-        "observation.token_features": obs["token_features"],
-        "observation.state": obs["agent_pos"],
-        "observation.environment_state": obs["environment_state"],
-    }
-    if "point_cloud" in obs:
-        batch["observation.point_cloud"] = obs["point_cloud"]
-    out = {k: torch.from_numpy(np.asarray(v, dtype=np.float32)).unsqueeze(0) for k, v in batch.items()}
-    for cam, image in obs.get("pixels", {}).items():
-        out[f"observation.images.{cam}"] = torch.from_numpy(image).permute(2, 0, 1).float().unsqueeze(0) / 255
-    return out
 
 
 def record_rollout(
@@ -97,7 +83,7 @@ def record_rollout(
             for cam, image in obs["pixels"].items():
                 rec.log(cam, rr.Image(image))
 
-        batch = preprocessor(policy_observation(obs))
+        batch = preprocessor(schema.policy_batch(obs))
         with torch.inference_mode():
             action = postprocessor(policy.select_action(batch))
         if policy.last_chunk is not None and policy.last_chunk is not logged_chunk:

@@ -1,0 +1,179 @@
+"""The token data contract, written once: env observation -> LeRobotDataset frame -> policy batch.
+
+Every tool converts through this module (the recorder, the LeRobot env config, the rerun visualiser, the
+benchmarks and the tests); a new observation modality is added here, in one place. It is a leaf: it imports
+nothing else of ours.
+
+| env key | dataset / policy key | LeRobot type | shape |
+|---|---|---|---|
+| ``token_poses`` | ``observation.token_poses`` | STATE | (N, 9) pose vectors ``POSE_LAYOUT``, token 0 = EEF |
+| ``token_features`` | ``observation.token_features`` | STATE | (N, F) one-hot token id + scalars |
+| ``agent_pos`` | ``observation.state`` | STATE | (10,) EEF pose + gripper opening |
+| ``environment_state`` | ``observation.environment_state`` | ENV | (9 (N - 1),) object poses, for baselines |
+| ``point_cloud`` | ``observation.point_cloud`` | STATE | (P, 3) world points of a fixture |
+| ``pixels/<cam>`` | ``observation.images.<cam>`` | VISUAL | (H, W, 3) uint8 (policy: (3, H, W) in [0, 1]) |
+| (the action) | ``action`` | ACTION | (10,) target EEF pose + gripper command in [-1, 1] |
+
+An env observation is a dict of arrays with the cameras nested under ``pixels``; "shapes" below are
+``{flat env key: shape}`` with the cameras flattened to ``pixels/<cam>`` (:func:`observation_shapes`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+# ---------------------------------------------------------------------------- pose and action layout
+POSE_NAMES = ("x", "y", "z", "r00", "r10", "r20", "r01", "r11", "r21")
+"""Position, then the first and second columns of the rotation matrix (continuous 6D rotation)."""
+POSE_DIM = len(POSE_NAMES)
+POSE_LAYOUT = "[x, y, z, r00, r10, r20, r01, r11, r21]"
+GRIPPER_DIM = 1
+ACTION_DIM = POSE_DIM + GRIPPER_DIM
+ACTION_NAMES = (*POSE_NAMES, "gripper")
+"""Action: absolute target EEF pose (world frame) + gripper command in [-1 open, 1 close]."""
+STATE_NAMES = (*POSE_NAMES, "gripper_opening")
+"""``observation.state``: the EEF pose + the gripper opening in metres."""
+
+# ---------------------------------------------------------------------------- dataset / policy keys
+TOKEN_POSES = "observation.token_poses"
+TOKEN_FEATURES = "observation.token_features"
+STATE = "observation.state"
+ENV_STATE = "observation.environment_state"
+POINT_CLOUD = "observation.point_cloud"
+IMAGES = "observation.images"
+"""Prefix of the camera keys: ``observation.images.<cam>``."""
+ACTION = "action"
+PIXELS = "pixels"
+"""The env key under which the cameras are nested: ``obs["pixels"]["<cam>"]``."""
+
+_ENV_KEYS: dict[str, tuple[str, FeatureType]] = {
+    "token_poses": (TOKEN_POSES, FeatureType.STATE),
+    "token_features": (TOKEN_FEATURES, FeatureType.STATE),
+    "agent_pos": (STATE, FeatureType.STATE),
+    "environment_state": (ENV_STATE, FeatureType.ENV),
+    "point_cloud": (POINT_CLOUD, FeatureType.STATE),
+}
+_NAMES = {"agent_pos": list(STATE_NAMES)}
+CAMERAS = ("wrist",)
+"""The cameras a gym_actionflow env can have (``obs_mode="pixels"``)."""
+
+FEATURES_MAP: dict[str, str] = {
+    ACTION: ACTION,
+    **{env_key: key for env_key, (key, _) in _ENV_KEYS.items()},
+    **{f"{PIXELS}/{cam}": f"{IMAGES}.{cam}" for cam in CAMERAS},
+}
+"""Env key -> dataset / policy key, as lerobot-eval's observation preprocessing maps them."""
+
+
+def policy_key(env_key: str) -> str:
+    """The dataset / policy key of a flat env key: ``token_poses -> observation.token_poses``,
+    ``pixels/wrist -> observation.images.wrist``."""
+    if env_key.startswith(f"{PIXELS}/"):
+        return f"{IMAGES}.{env_key.removeprefix(f'{PIXELS}/')}"
+    if env_key not in FEATURES_MAP:
+        raise KeyError(
+            f"{env_key!r} is not an observation key of the token schema; expected one of "
+            f"{sorted(FEATURES_MAP)}"
+        )
+    return FEATURES_MAP[env_key]
+
+
+def _is_camera(env_key: str) -> bool:
+    return env_key.startswith(f"{PIXELS}/")
+
+
+# ---------------------------------------------------------------------------- shapes and feature specs
+def observation_shapes(space) -> dict[str, tuple[int, ...]]:
+    """``{flat env key: shape}`` of an env's observation space (a gymnasium ``Dict``); cameras last."""
+    shapes, cameras = {}, {}
+    for key, sub in space.spaces.items():
+        if key == PIXELS:
+            cameras.update({f"{PIXELS}/{cam}": tuple(s.shape) for cam, s in sub.spaces.items()})
+        else:
+            shapes[key] = tuple(sub.shape)
+    return shapes | cameras
+
+
+def token_shapes(n_tokens: int, feature_dim: int) -> dict[str, tuple[int, ...]]:
+    """The shapes of an observation with ``n_tokens`` tokens of ``feature_dim`` features, as a gym_actionflow
+    env gives them (for synthetic tasks, benchmarks and tests); add ``point_cloud`` / ``pixels/<cam>`` to it
+    for those modalities."""
+    return {
+        "token_poses": (n_tokens, POSE_DIM),
+        "token_features": (n_tokens, feature_dim),
+        "agent_pos": (len(STATE_NAMES),),
+        "environment_state": (POSE_DIM * (n_tokens - 1),),
+    }
+
+
+def dataset_features(shapes: Mapping[str, tuple[int, ...]]) -> dict[str, dict]:
+    """LeRobotDataset feature specs (``LeRobotDataset.create(features=...)``) of observations with these
+    shapes, plus the action. Cameras are stored as video."""
+    features = {}
+    for env_key, shape in shapes.items():
+        if _is_camera(env_key):
+            spec = {"dtype": "video", "shape": tuple(shape), "names": ["height", "width", "channels"]}
+        else:
+            spec = {"dtype": "float32", "shape": tuple(shape), "names": _NAMES.get(env_key)}
+        features[policy_key(env_key)] = spec
+    features[ACTION] = {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)}
+    return features
+
+
+def env_features(shapes: Mapping[str, tuple[int, ...]]) -> dict[str, PolicyFeature]:
+    """LeRobot ``EnvConfig.features``: ``{flat env key: PolicyFeature}`` with the env's own shapes (cameras
+    (H, W, 3)), plus the action; LeRobot maps them to policy keys with :data:`FEATURES_MAP`."""
+    features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+    for env_key, shape in shapes.items():
+        kind = FeatureType.VISUAL if _is_camera(env_key) else _ENV_KEYS[env_key][1]
+        features[env_key] = PolicyFeature(type=kind, shape=tuple(shape))
+    return features
+
+
+def policy_features(
+    shapes: Mapping[str, tuple[int, ...]],
+) -> tuple[dict[str, PolicyFeature], dict[str, PolicyFeature]]:
+    """``(input_features, output_features)`` of a policy config for observations with these shapes: what
+    LeRobot derives from a dataset or an env (cameras become channel-first (3, H, W))."""
+    inputs = {}
+    for env_key, feature in env_features(shapes).items():
+        if env_key == ACTION:
+            continue
+        if feature.type is FeatureType.VISUAL:
+            h, w, c = feature.shape
+            feature = PolicyFeature(type=FeatureType.VISUAL, shape=(c, h, w))
+        inputs[policy_key(env_key)] = feature
+    return inputs, {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+
+
+# ---------------------------------------------------------------------------- conversions
+def flatten_observation(obs: Mapping) -> dict[str, np.ndarray]:
+    """An env observation as ``{flat env key: array}``: the cameras un-nested to ``pixels/<cam>``."""
+    flat = {k: v for k, v in obs.items() if k != PIXELS}
+    flat.update({f"{PIXELS}/{cam}": image for cam, image in obs.get(PIXELS, {}).items()})
+    return flat
+
+
+def dataset_frame(obs: Mapping, action: np.ndarray, task: str) -> dict:
+    """One ``LeRobotDataset.add_frame`` frame: the observation under dataset keys, the action, the task."""
+    frame = {policy_key(k): v for k, v in flatten_observation(obs).items()}
+    frame[ACTION] = np.asarray(action, dtype=np.float32)
+    frame["task"] = task
+    return frame
+
+
+def policy_batch(obs: Mapping) -> dict[str, torch.Tensor]:
+    """A single env observation as the batch of one that LeRobot's env preprocessing gives a policy:
+    float32 tensors ``[1, ...]``, camera images ``[1, 3, H, W]`` in [0, 1]."""
+    batch = {}
+    for env_key, value in flatten_observation(obs).items():
+        if _is_camera(env_key):
+            tensor = torch.from_numpy(np.asarray(value)).permute(2, 0, 1).float() / 255
+        else:
+            tensor = torch.from_numpy(np.asarray(value, dtype=np.float32))
+        batch[policy_key(env_key)] = tensor.unsqueeze(0)
+    return batch

@@ -1,0 +1,26 @@
+"""``actionflow-record``: scripted-expert demonstrations of a gym_actionflow task into a LeRobotDataset.
+
+One module per concern: :mod:`.recipe` (what to record), :mod:`.recorder` (the recording loop), :mod:`.log`
+(which seeds were kept, for resuming), :mod:`.durability` (no half-written episode survives a kill),
+:mod:`.hub` (push with a dataset card) and :mod:`.cli` (the command line).
+"""
+
+from lerobot_actionflow.tools.record.cli import main
+from lerobot_actionflow.tools.record.hub import check_hub_credentials, dataset_card_text, push
+from lerobot_actionflow.tools.record.log import LOG_NAME, RecordingLog
+from lerobot_actionflow.tools.record.recipe import Recipe, load_recipe
+from lerobot_actionflow.tools.record.recorder import RecordResult, make_env, record
+
+__all__ = [
+    "LOG_NAME",
+    "RecordResult",
+    "Recipe",
+    "RecordingLog",
+    "check_hub_credentials",
+    "dataset_card_text",
+    "load_recipe",
+    "main",
+    "make_env",
+    "push",
+    "record",
+]
