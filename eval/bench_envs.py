@@ -49,10 +49,10 @@ def time_steps(env_id: str, obs_mode: str, steps: int) -> float:
 
 
 def time_point_cloud(resets: int) -> list[tuple[str, float, float]]:
-    """MugHanging with ``hanger_obs="point_cloud"``: (layout, mean reset s, mean cloud s) over ``resets``."""
+    """MugHanging with ``hanger_obs="point_cloud"``: (variant, mean reset s, mean cloud s) over ``resets``."""
     rows = []
-    for layout in ("train", "test"):
-        env = gym.make("gym_actionflow/MugHanging-v0", layout=layout, hanger_obs="point_cloud")
+    for variant in ("train", "test"):
+        env = gym.make("gym_actionflow/MugHanging-v0", variant=variant, hanger_obs="point_cloud")
         env.reset(seed=0)  # the first reset also creates the depth renderer
         total = cloud = 0.0
         for seed in range(1, resets + 1):
@@ -61,14 +61,13 @@ def time_point_cloud(resets: int) -> list[tuple[str, float, float]]:
             total += time.perf_counter() - start
             cloud += env.unwrapped.cloud_seconds
         env.close()
-        rows.append((layout, total / resets, cloud / resets))
+        rows.append((variant, total / resets, cloud / resets))
     return rows
 
 
 def run_episode(args: tuple[str, str, float, int]) -> tuple[bool, int]:
     env_id, variant, noise, seed = args
-    task = next(t for t in gym_actionflow.TASKS if t.env_id == env_id)
-    env = gym.make(env_id, **task.kwargs(variant))
+    env = gym.make(env_id, **gym_actionflow.find_task(env_id).kwargs(variant))
     episode = gym_actionflow.run_episode(env, gym_actionflow.make_expert(env, noise=noise, seed=seed), seed)
     env.close()
     return episode.success, episode.steps
@@ -87,10 +86,10 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args()
-    tasks = {t.name: t for t in gym_actionflow.TASKS}
-    unknown = sorted(set(args.tasks) - set(tasks))
-    if unknown:
-        parser.error(f"unknown task(s) {unknown}; known: {sorted(tasks)}")
+    try:
+        tasks = {name: gym_actionflow.find_task(name) for name in args.tasks}
+    except ValueError as err:
+        parser.error(str(err))
 
     speed_rows = []
     for name in tqdm(args.tasks, desc="speed"):
@@ -128,7 +127,7 @@ def main() -> None:
             [
                 "MugHanging point-cloud observation (7 depth views, rendered once per reset), 20 resets:",
                 "",
-                "| layout | reset with point cloud, s | of which the point cloud, s |",
+                "| variant | reset with point cloud, s | of which the point cloud, s |",
                 "|---|---|---|",
                 *(f"| {lay} | {r:.3f} | {c:.3f} |" for lay, r, c in cloud_rows),
                 "",

@@ -46,12 +46,10 @@ class ActionFlowEnvConfig(EnvConfig):
     def __post_init__(self) -> None:
         spec = _task_spec(self.task)
         self.task = f"{spec.name}-v0"
-        if self.variant is None:
-            self.variant = spec.variants[0]
-        elif self.variant not in spec.variants:
-            raise ValueError(f"--env.variant={self.variant!r}; {spec.name} has variants {spec.variants}")
-        if self.obs_mode not in ("state", "pixels"):
-            raise ValueError(f"--env.obs_mode={self.obs_mode!r}; expected 'state' or 'pixels'")
+        try:
+            self.variant = spec.kwargs(self.variant, self.obs_mode)["variant"]
+        except ValueError as err:
+            raise ValueError(f"--env.{err}") from None
         if self.hanger_obs is not None and spec.name != "MugHanging":
             raise ValueError(f"--env.hanger_obs is a MugHanging option; the task is {spec.name}")
         if not self.features:
@@ -69,7 +67,7 @@ class ActionFlowEnvConfig(EnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         spec = _task_spec(self.task)
-        kwargs = {"obs_mode": self.obs_mode, **spec.kwargs(self.variant)}
+        kwargs = spec.kwargs(self.variant, self.obs_mode)
         if self.hanger_obs is not None:
             kwargs["hanger_obs"] = self.hanger_obs
         return kwargs

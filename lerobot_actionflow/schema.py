@@ -88,14 +88,16 @@ def _is_camera(env_key: str) -> bool:
 
 # ---------------------------------------------------------------------------- shapes and feature specs
 def observation_shapes(space) -> dict[str, tuple[int, ...]]:
-    """``{flat env key: shape}`` of an env's observation space (a gymnasium ``Dict``); cameras last."""
-    shapes, cameras = {}, {}
+    """``{flat env key: shape}`` of an env's observation space (a gymnasium ``Dict``), in the schema's order
+    (the table above; cameras last) whatever the order of the space."""
+    flat = {}
     for key, sub in space.spaces.items():
         if key == PIXELS:
-            cameras.update({f"{PIXELS}/{cam}": tuple(s.shape) for cam, s in sub.spaces.items()})
+            flat.update({f"{PIXELS}/{cam}": tuple(s.shape) for cam, s in sub.spaces.items()})
         else:
-            shapes[key] = tuple(sub.shape)
-    return shapes | cameras
+            flat[key] = tuple(sub.shape)
+    ordered = {k: flat[k] for k in _ENV_KEYS if k in flat}
+    return ordered | {k: v for k, v in flat.items() if k not in ordered}
 
 
 def token_shapes(n_tokens: int, feature_dim: int) -> dict[str, tuple[int, ...]]:

@@ -10,8 +10,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from gym_actionflow.base import HOME_POS, WORKSPACE_HIGH, WORKSPACE_LOW
+from gym_actionflow.base import HOME_POS, WORKSPACE_HIGH, WORKSPACE_LOW, ManipulationEnv
 from gym_actionflow.geometry import pose9
+from gym_actionflow.registry import load
 from gymnasium.utils.env_checker import check_env
 from scipy.spatial.transform import Rotation
 
@@ -28,6 +29,23 @@ def hold_action(obs: dict, grip: float = -1.0) -> np.ndarray:
 def test_check_env(env_id, variant):
     env = gym.make(env_id, **BY_ID[env_id].kwargs(variant))
     check_env(env.unwrapped, skip_render_check=False)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_tasks_fill_hooks_and_compute_success_once_per_step(env_id):
+    """Guards against a task re-implementing the control loop (and drifting from the others): no task
+    overrides reset, step or _observation, and a step evaluates the success rule exactly once."""
+    cls = load(BY_ID[env_id].entry_point)
+    for name in ("reset", "step", "_observation"):
+        assert getattr(cls, name) is getattr(ManipulationEnv, name), f"{cls.__name__} overrides {name}"
+    env = gym.make(env_id).unwrapped
+    obs, _ = env.reset(seed=0)
+    checks = []
+    rule = env._check_success
+    env._check_success = lambda: checks.append(1) or rule()
+    env.step(hold_action(obs))
+    assert len(checks) == 1
     env.close()
 
 

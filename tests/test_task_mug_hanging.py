@@ -1,5 +1,5 @@
-"""Mug Hanging: the expert solves both layouts, the success rule rejects the near misses and waits 1 s, and
-the hanger's point cloud lies on the hanger and moves with it."""
+"""Mug Hanging: the success rule rejects the near misses and waits 1 s, the hanger's point cloud lies on the
+hanger and moves with it, and `layout=` still selects the variant (the expert: test_experts.py)."""
 
 from __future__ import annotations
 
@@ -24,21 +24,8 @@ from gymnasium.utils.env_checker import check_env
 ENV_ID = "gym_actionflow/MugHanging-v0"
 
 
-def run_expert(layout: str, seed: int, noise: float = 0.0) -> bool:
-    env = gym.make(ENV_ID, layout=layout)
-    episode = gym_actionflow.run_episode(env, gym_actionflow.make_expert(env, noise=noise, seed=seed), seed)
-    env.close()
-    return episode.success
-
-
-@pytest.mark.parametrize(("layout", "seed"), [("train", 0), ("train", 1), ("test", 0), ("test", 1)])
-def test_expert_solves_fixed_seeds(layout, seed):
-    """Test seeds 0 and 1 put the hanger on the right and on the left side of the table."""
-    assert run_expert(layout, seed, noise=1.0 if seed else 0.0)
-
-
-def fresh_env(layout: str = "train", seed: int = 0, **kwargs) -> MugHangingEnv:
-    env = gym.make(ENV_ID, layout=layout, terminate_on_success=False, **kwargs).unwrapped
+def fresh_env(variant: str = "train", seed: int = 0, **kwargs) -> MugHangingEnv:
+    env = gym.make(ENV_ID, variant=variant, terminate_on_success=False, **kwargs).unwrapped
     env.reset(seed=seed)
     return env
 
@@ -116,7 +103,7 @@ def test_mug_held_on_the_peg_is_not_success_until_released():
     """Guards against counting a mug that the gripper still holds: the expert brings the handle onto the peg;
     instead of releasing, the gripper stays closed and presses the handle onto the peg for 2 s (no success,
     the counter stays at 0); once opened and lifted away, success comes 1 s after the mug hangs."""
-    env = gym.make(ENV_ID, layout="test", terminate_on_success=False)
+    env = gym.make(ENV_ID, variant="test", terminate_on_success=False)
     base = env.unwrapped
     expert = gym_actionflow.make_expert(env)
     obs, _ = env.reset(seed=1)
@@ -157,7 +144,7 @@ def test_layouts_fix_or_move_the_hanger_and_keep_the_mug_out_of_the_box():
     never reaches into the layout's point-cloud box (so the mug never pollutes the hanger's cloud)."""
     rows = {}
     for layout in ("train", "test"):
-        env = gym.make(ENV_ID, layout=layout).unwrapped
+        env = gym.make(ENV_ID, variant=layout).unwrapped
         out = []
         for seed in range(30):
             obs, _ = env.reset(seed=seed)
@@ -208,7 +195,7 @@ def surface_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms, points: 
 
 @pytest.fixture(scope="module")
 def cloud_env():
-    env = gym.make(ENV_ID, layout="test", hanger_obs="point_cloud", terminate_on_success=False).unwrapped
+    env = gym.make(ENV_ID, variant="test", hanger_obs="point_cloud", terminate_on_success=False).unwrapped
     yield env
     env.close()
 
@@ -269,7 +256,7 @@ def test_point_cloud_is_deterministic_given_the_seed(cloud_env):
 
 def test_check_env_with_point_cloud_and_pixels():
     """Gymnasium's checker on the point-cloud variant (with the 80 x 80 wrist camera, P = 64)."""
-    env = gym.make(ENV_ID, layout="train", hanger_obs="point_cloud", n_points=64, obs_mode="pixels")
+    env = gym.make(ENV_ID, variant="train", hanger_obs="point_cloud", n_points=64, obs_mode="pixels")
     check_env(env.unwrapped, skip_render_check=True)
     obs, _ = env.reset(seed=0)
     assert obs["pixels"]["wrist"].shape == (80, 80, 3) and obs["point_cloud"].shape == (64, 3)
@@ -280,6 +267,7 @@ def test_check_env_with_point_cloud_and_pixels():
     ("kwargs", "match"),
     [
         ({"layout": "D7"}, r"layout='D7'; expected one of \('train', 'test'\)"),
+        ({"variant": "D7"}, r"variant='D7'; expected one of \('train', 'test'\)"),
         ({"hanger_obs": "x"}, r"hanger_obs='x'; expected 'pose' .* or 'point_cloud'"),
         ({"n_points": 0}, "n_points=0; expected a positive integer"),
     ],
@@ -287,3 +275,32 @@ def test_check_env_with_point_cloud_and_pixels():
 def test_bad_kwargs_raise_clear_errors(kwargs, match):
     with pytest.raises(ValueError, match=match):
         gym.make(ENV_ID, **kwargs)
+
+
+def test_layout_is_a_deprecated_alias_of_variant():
+    """Code written with MugHanging's first keyword keeps working: ``layout=`` warns and selects the same
+    variant as ``variant=`` (the keyword of every task); both at once must agree."""
+    with pytest.warns(DeprecationWarning, match="use variant="):
+        old = gym.make(ENV_ID, layout="test")
+    new = gym.make(ENV_ID, variant="test")
+    assert old.unwrapped.variant == "test" and old.unwrapped.layout == "test"
+    np.testing.assert_array_equal(old.reset(seed=1)[0]["token_poses"], new.reset(seed=1)[0]["token_poses"])
+    disagree = pytest.raises(ValueError, match="variant='train' and layout='test' disagree")
+    with disagree, pytest.warns(DeprecationWarning):
+        gym.make(ENV_ID, variant="train", layout="test")
+    old.close()
+    new.close()
+
+
+def test_the_contact_scan_runs_once_per_step():
+    """Guards against the hang rule being evaluated again for the success flag or the observation: one scan of
+    the mug's contacts per control step, which both the counter and the success flag use."""
+    env = fresh_env()
+    scans = []
+    scan = env.mug_hanging
+    env.mug_hanging = lambda: scans.append(1) or scan()
+    mujoco.mj_forward(env.model, env.data)
+    hold_pose = np.concatenate([pose9(*env.tcp_pose()), [-1.0]])
+    for _ in range(3):
+        env.step(hold_pose)
+    assert len(scans) == 3

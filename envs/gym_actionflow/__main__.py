@@ -43,9 +43,10 @@ def main(argv: list[str] | None = None) -> None:
             parser.error("--video *.mp4 needs `pip install imageio-ffmpeg`; or write a .gif instead")
 
     task = gym_actionflow.find_task(args.task)
-    if args.variant is not None and args.variant not in task.variants:
-        parser.error(f"--variant {args.variant}: {task.name} has variants {', '.join(task.variants)}")
-    kwargs = {} if args.variant is None else task.kwargs(args.variant)
+    try:
+        kwargs = task.kwargs(args.variant)
+    except ValueError as err:
+        parser.error(f"--{err}")
     env = gym.make(task.env_id, **kwargs)
     expert = gym_actionflow.make_expert(env, noise=args.noise, seed=args.seed)
     frames: list[np.ndarray] = []

@@ -1,6 +1,7 @@
 """Shared base of every gym_actionflow task: scene, robot, control, token observations, rendering.
 
-A task subclasses :class:`ManipulationEnv` and fills five small hooks:
+A task subclasses :class:`ManipulationEnv` and fills hooks; it never overrides ``reset``, ``step`` or
+``_observation`` (an ``__init__`` that only adds the task's own keywords is fine). Required hooks:
 
 * ``_build_task(spec)``: add its objects and fixtures to the ``MjSpec``;
 * ``_cache_refs()``: look up the ids it needs in the compiled model;
@@ -8,7 +9,20 @@ A task subclasses :class:`ManipulationEnv` and fills five small hooks:
 * ``_entity_poses()``: the world pose of each non-EEF token, in ``entity_names`` order;
 * ``_check_success()``: the success rule, free of side effects.
 
-and may add per-token task scalars (``scalar_names`` / ``_task_scalars``).
+Optional hooks (the default does nothing):
+
+* ``_task_scalars()``: per-token task scalars, named by ``scalar_names`` (a lid angle...);
+* ``_after_reset()``: after the layout is placed and the scene settled, before the first observation (let a
+  held object settle in the hand, clear a counter);
+* ``_after_physics()``: once per control step, right after the physics and before the success check (advance
+  a counter the success rule reads);
+* ``_show_success(success)``: show the task state in the scene before the observation renders (a lit bulb);
+* ``_extra_observation_spaces()`` / ``_extra_observation()``: observation keys beyond the tokens (a point
+  cloud).
+
+One control step: action -> IK -> physics -> ``_after_physics`` -> success (computed once) ->
+``_show_success`` -> observation. A reset: robot home -> ``_sample_layout`` -> settle -> ``_after_reset`` ->
+success -> ``_show_success`` -> observation.
 """
 
 from __future__ import annotations
@@ -24,6 +38,7 @@ import numpy as np
 from gymnasium import spaces
 
 from gym_actionflow.geometry import axis_angle_matrix, gram_schmidt, pose9, rotation_angle, rotation_log
+from gym_actionflow.registry import OBS_MODES, check_choice
 from gym_actionflow.robot import MAX_FINGER, WRIST_CAMERA, PoseController, RobotRefs, add_panda
 
 CONTROL_HZ = 20
@@ -62,28 +77,30 @@ class ManipulationEnv(gym.Env):
     entity_names: ClassVar[tuple[str, ...]] = ()
     scalar_names: ClassVar[tuple[str, ...]] = ()
     variants: ClassVar[tuple[str, ...]] = ("D0", "D1")
+    """Initial-state distributions (``variant=``); the first is the default."""
     task_description: ClassVar[str] = ""
+    default_image_size: ClassVar[int] = 84
+    """Side of the square wrist image when ``image_size`` is not given."""
 
     def __init__(
         self,
-        variant: str = "D0",
+        variant: str | None = None,
         obs_mode: str = "state",
         render_mode: str | None = "rgb_array",
         terminate_on_success: bool = True,
-        image_size: int = 84,
+        image_size: int | None = None,
         render_size: tuple[int, int] = (240, 320),
     ) -> None:
-        if variant not in self.variants:
-            raise ValueError(f"variant={variant!r} is not one of {self.variants} for {type(self).__name__}")
-        if obs_mode not in ("state", "pixels"):
-            raise ValueError(f"obs_mode={obs_mode!r}; expected 'state' or 'pixels' (state + wrist camera)")
+        variant = self.variants[0] if variant is None else variant
+        check_choice("variant", variant, self.variants, f" for {type(self).__name__}")
+        check_choice("obs_mode", obs_mode, OBS_MODES, " ('pixels' = state + wrist camera)")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}; only 'rgb_array' (or None) is supported")
         self.variant = variant
         self.obs_mode = obs_mode
         self.render_mode = render_mode
         self.terminate_on_success = terminate_on_success
-        self.image_size = int(image_size)
+        self.image_size = int(self.default_image_size if image_size is None else image_size)
         self.render_size = tuple(render_size)
 
         spec = self._build_scene()
@@ -123,6 +140,7 @@ class ManipulationEnv(gym.Env):
             "environment_state": spaces.Box(
                 -np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32
             ),
+            **self._extra_observation_spaces(),
         }
         if obs_mode == "pixels":
             shape = (self.image_size, self.image_size, 3)
@@ -188,6 +206,23 @@ class ManipulationEnv(gym.Env):
 
     def _check_success(self) -> bool:
         raise NotImplementedError
+
+    def _after_reset(self) -> None:
+        """After the layout is placed and the scene settled, before the first observation (default: none)."""
+
+    def _after_physics(self) -> None:
+        """Once per control step, after the physics, before the success check (default: nothing)."""
+
+    def _show_success(self, success: bool) -> None:
+        """Show the task state in the scene before the observation renders (default: nothing)."""
+
+    def _extra_observation_spaces(self) -> dict[str, spaces.Space]:
+        """Spaces of the observation keys the task adds beyond the tokens (default: none)."""
+        return {}
+
+    def _extra_observation(self) -> dict[str, np.ndarray]:
+        """Values of the keys of :meth:`_extra_observation_spaces` for the current state."""
+        return {}
 
     # ------------------------------------------------------------------ helpers for tasks
     @property
@@ -256,7 +291,9 @@ class ManipulationEnv(gym.Env):
         self._sample_layout(self.np_random)
         mujoco.mj_forward(m, d)
         mujoco.mj_step(m, d, nstep=SUBSTEPS)  # let resting contacts settle
-        return self._observation(), self._info()
+        self._after_reset()
+        obs, success = self._conclude()
+        return obs, {"is_success": success}
 
     def step(self, action):
         pos, rot, grip = self._parse_action(action)
@@ -277,10 +314,16 @@ class ManipulationEnv(gym.Env):
         d.ctrl[self.robot.arm_ctrl] = self._q_target
         d.ctrl[self.robot.finger_ctrl] = MAX_FINGER * (1.0 - grip) / 2.0
         mujoco.mj_step(self.model, d, nstep=SUBSTEPS)
-        obs = self._observation()
-        info = self._info()
-        success = info["is_success"]
-        return obs, float(success), bool(success and self.terminate_on_success), False, info
+        self._after_physics()
+        obs, success = self._conclude()
+        terminated = bool(success and self.terminate_on_success)
+        return obs, float(success), terminated, False, {"is_success": success}
+
+    def _conclude(self) -> tuple[dict[str, Any], bool]:
+        """The end of a reset or a step: success computed once, shown in the scene, then the observation."""
+        success = self.is_success()
+        self._show_success(success)
+        return self._observation(), success
 
     def _parse_action(self, action) -> tuple[np.ndarray, np.ndarray, float]:
         a = np.asarray(action, dtype=np.float64)
@@ -299,9 +342,6 @@ class ManipulationEnv(gym.Env):
         """The task's success rule on the current state (no side effects)."""
         return bool(self._check_success())
 
-    def _info(self) -> dict[str, Any]:
-        return {"is_success": self.is_success()}
-
     def _observation(self) -> dict[str, Any]:
         n = self.n_tokens
         tcp_pos, tcp_rot = self.tcp_pose()
@@ -319,6 +359,7 @@ class ManipulationEnv(gym.Env):
             "token_features": feats,
             "agent_pos": np.concatenate([poses[0], [opening]]).astype(np.float32),
             "environment_state": poses[1:].reshape(-1).copy(),
+            **self._extra_observation(),
         }
         if self.obs_mode == "pixels":
             obs["pixels"] = {"wrist": self._render_camera(WRIST_CAMERA, self.image_size, self.image_size)}

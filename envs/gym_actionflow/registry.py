@@ -6,7 +6,17 @@ Entry points are strings, so importing gym_actionflow stays cheap: a task module
 from __future__ import annotations
 
 import importlib
+from collections.abc import Sequence
 from dataclasses import dataclass
+
+OBS_MODES = ("state", "pixels")
+"""``state``: token observations; ``pixels``: the same plus the wrist camera."""
+
+
+def check_choice(name: str, value: object, choices: Sequence, context: str = "") -> None:
+    """The one check of a keyword against its choices: ``variant='D7'; expected one of ('D0', 'D1')``."""
+    if value not in choices:
+        raise ValueError(f"{name}={value!r}; expected one of {tuple(choices)}{context}")
 
 
 @dataclass(frozen=True)
@@ -18,19 +28,21 @@ class TaskSpec:
     """``module:ExpertClass`` of its scripted expert."""
     max_episode_steps: int
     variants: tuple[str, ...]
-    """Initial-state distributions; the first is the default."""
-    variant_kwarg: str = "variant"
-    """The ``gym.make`` keyword that selects a variant (``layout`` for MugHanging)."""
+    """Initial-state distributions (the ``variant`` keyword of every task); the first is the default."""
 
     @property
     def env_id(self) -> str:
         return f"gym_actionflow/{self.name}-v0"
 
-    def kwargs(self, variant: str) -> dict[str, str]:
-        """``gym.make`` keyword arguments selecting ``variant``."""
-        if variant not in self.variants:
-            raise ValueError(f"{self.name} has no variant {variant!r}; expected one of {self.variants}")
-        return {self.variant_kwarg: variant}
+    def kwargs(self, variant: str | None = None, obs_mode: str | None = None) -> dict[str, str]:
+        """``gym.make`` keyword arguments selecting ``variant`` (default: the first) and ``obs_mode``
+        (default: the env's, ``state``); a value the task does not have is a ValueError naming the choices."""
+        variant = self.variants[0] if variant is None else variant
+        check_choice("variant", variant, self.variants, f" for {self.name}")
+        if obs_mode is None:
+            return {"variant": variant}
+        check_choice("obs_mode", obs_mode, OBS_MODES)
+        return {"variant": variant, "obs_mode": obs_mode}
 
 
 def find_task(name: str) -> TaskSpec:
@@ -96,6 +108,5 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.mug_hanging:MugHangingExpert",
         400,
         ("train", "test"),
-        variant_kwarg="layout",
     ),
 )

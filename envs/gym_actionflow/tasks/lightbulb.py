@@ -245,13 +245,7 @@ class LightbulbEnv(ManipulationEnv):
     entity_names = ("bulb", "socket")
     variants = ("D0",)
     task_description = "Insert the light bulb's pins into the socket, push it down and turn it to lock it."
-
-    def __init__(self, variant: str = "D0", obs_mode: str = "state", render_mode: str | None = "rgb_array",
-                 terminate_on_success: bool = True, image_size: int = 80,
-                 render_size: tuple[int, int] = (240, 320)) -> None:
-        super().__init__(variant=variant, obs_mode=obs_mode, render_mode=render_mode,
-                         terminate_on_success=terminate_on_success, image_size=image_size,
-                         render_size=render_size)
+    default_image_size = 80
 
     def _build_task(self, spec: mujoco.MjSpec) -> None:
         spec.add_material(name="socket_plastic", rgba=(0.18, 0.18, 0.2, 1.0))
@@ -273,11 +267,9 @@ class LightbulbEnv(ManipulationEnv):
         self.socket_geoms = self.geoms_of("socket")
 
     # ------------------------------------------------------------------ reset
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed, options=options)
+    def _after_reset(self) -> None:
         # Let the fingers clamp the bulb before the first observation.
         mujoco.mj_step(self.model, self.data, nstep=_SETTLE_SUBSTEPS)
-        return self._observation(), self._info()
 
     def _sample_layout(self, rng: np.random.Generator) -> None:
         xy, yaw = SOCKET_REGION.sample(rng)
@@ -302,15 +294,10 @@ class LightbulbEnv(ManipulationEnv):
     def _entity_poses(self):
         return [self.body_pose(self.bulb_id), self.body_pose(self.socket_id)]
 
-    def _observation(self):
-        # The glass glows while the bulb is locked; set before the wrist camera renders.
-        self.update_light()
-        return super()._observation()
-
-    def update_light(self) -> None:
-        """Give the glass its lit (emissive) material when the success rule holds, the plain one otherwise."""
-        lit = self._check_success()
-        self.model.geom_matid[self.glass_geom] = self.glass_on if lit else self.glass_off
+    def _show_success(self, success: bool) -> None:
+        """The glass glows (emissive material) while the success rule holds; set before the wrist camera
+        renders."""
+        self.model.geom_matid[self.glass_geom] = self.glass_on if success else self.glass_off
 
     @property
     def lit(self) -> bool:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 
 import mujoco
 import numpy as np
@@ -18,6 +19,7 @@ from gym_actionflow.point_cloud import (
     look_at_xyaxes,
     voxel_unique,
 )
+from gym_actionflow.registry import check_choice
 
 # ---------------------------------------------------------------- mug (free body), mug frame
 # Mug frame: origin at the centre of the mug's bottom (on the table when it stands), z up along the mug's
@@ -178,7 +180,7 @@ class MugHangingEnv(ManipulationEnv):
     one side whose opening is 2.4 x 4.6 cm. The hanger is a static fixture: an 11 cm base plate, a 2 cm pole
     and a capsule peg (1.2 cm thick) leaving the pole 19 cm above the table, 30 degrees above horizontal,
     whose tip reaches 10.4 cm out and 25 cm up. Training data has the hanger always at one pose
-    (`layout="train"`); `layout="test"` moves it to either side of the table, which an SE(3)-equivariant
+    (`variant="train"`); `variant="test"` moves it to either side of the table, which an SE(3)-equivariant
     policy should handle without new data.
 
     ## Observation
@@ -219,31 +221,33 @@ class MugHangingEnv(ManipulationEnv):
 
     ## Starting state
     The arm at its home pose, gripper open. The mug stands upright at x in [-0.2, -0.08], y in
-    [-0.045, 0.045] with any yaw (both layouts). `layout="train"`: the hanger's pole at (0.14, 0), the peg
-    pointing back at the robot (yaw pi). `layout="test"`: the pole at x in [0.02, 0.12] and y in
+    [-0.045, 0.045] with any yaw (both variants). `variant="train"`: the hanger's pole at (0.14, 0), the peg
+    pointing back at the robot (yaw pi). `variant="test"`: the pole at x in [0.02, 0.12] and y in
     [0.18, 0.26] (left) or [-0.26, -0.18] (right), equally likely, with yaw in [pi - pi/8, pi + pi/8].
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (400).
 
     ## Version history
-    * v0: initial release.
+    * v0: initial release; the hanger placement is the `variant` keyword of every task (`layout=`, its first
+      name, still works with a DeprecationWarning).
     """
 
     entity_names = ("mug", "hanger")
     variants = ("train", "test")
     task_description = "Pick up the mug and hang it by its handle on the hanger's peg."
+    default_image_size = 80
 
-    def __init__(self, layout: str = "train", hanger_obs: str = "pose", n_points: int = 512,
-                 image_size: int = 80, **kwargs) -> None:
-        if "variant" in kwargs:
-            raise TypeError(
-                f"MugHangingEnv selects its layout with layout=...; got variant={kwargs['variant']!r}"
-            )
-        if layout not in self.variants:
-            raise ValueError(
-                f"layout={layout!r}; expected one of {self.variants} (hanger fixed / moved aside)"
-            )
+    def __init__(self, variant: str | None = None, hanger_obs: str = "pose", n_points: int = 512,
+                 layout: str | None = None, **kwargs) -> None:
+        if layout is not None:
+            warnings.warn("MugHangingEnv(layout=...) is deprecated: use variant=... (the same values, "
+                          "'train' or 'test'), the keyword of every gym_actionflow task", DeprecationWarning,
+                          stacklevel=2)
+            check_choice("layout", layout, self.variants, " (hanger fixed / moved aside)")
+            if variant is not None and variant != layout:
+                raise ValueError(f"variant={variant!r} and layout={layout!r} disagree; give variant only")
+            variant = layout
         if hanger_obs not in ("pose", "point_cloud"):
             raise ValueError(f"hanger_obs={hanger_obs!r}; expected 'pose' (simulator pose of the hanger) or "
                              "'point_cloud' (depth from the hovering views)")
@@ -253,19 +257,22 @@ class MugHangingEnv(ManipulationEnv):
             )
         self.hanger_obs = hanger_obs
         self.n_points = int(n_points)
-        self.layout = layout
-        self.boxes = LAYOUT_BOXES[layout]
         self._cloud = np.zeros((self.n_points, 3), dtype=np.float32)
         self._hang_steps = 0
         self.cloud_seconds = 0.0
         """Wall time (s) the last reset spent rendering and processing the point cloud."""
-        super().__init__(variant=layout, image_size=image_size, **kwargs)
-        if hanger_obs == "point_cloud":
-            bound = np.float32(POSITION_BOUND)
-            self.observation_space = spaces.Dict({
-                **self.observation_space.spaces,
-                "point_cloud": spaces.Box(-bound, bound, (self.n_points, 3), dtype=np.float32),
-            })
+        super().__init__(variant=variant, **kwargs)
+
+    @property
+    def layout(self) -> str:
+        """The variant (``train`` / ``test``): where the hanger stands. Kept for code written before
+        ``variant`` was MugHanging's keyword."""
+        return self.variant
+
+    @property
+    def boxes(self) -> np.ndarray:
+        """The point-cloud box filter of the variant's hanger placements (K, 2, 3)."""
+        return LAYOUT_BOXES[self.variant]
 
     # ------------------------------------------------------------------ scene
     def _build_task(self, spec: mujoco.MjSpec) -> None:
@@ -287,13 +294,12 @@ class MugHangingEnv(ManipulationEnv):
         self.hover_cams = [m.camera(f"hover{i}").id for i in range(len(HOVER_VIEWS))]
 
     def _sample_layout(self, rng: np.random.Generator) -> None:
-        regions = HANGER_REGIONS[self.layout]
+        regions = HANGER_REGIONS[self.variant]
         region = regions[int(rng.integers(len(regions)))]
         xy, yaw = region.sample(rng)
         self.place_hanger(xy, yaw)
         mug_xy, mug_yaw = MUG_REGION.sample(rng)
         self.set_free_pose("mug_joint", np.array([mug_xy[0], mug_xy[1], TABLE_TOP]), yaw_quat(mug_yaw))
-        self._hang_steps = 0
         if self.hanger_obs == "point_cloud":
             mujoco.mj_forward(self.model, self.data)
             start = time.perf_counter()
@@ -337,11 +343,14 @@ class MugHangingEnv(ManipulationEnv):
             hanger = self.body_pose(self.hanger_id)
         return [self.body_pose(self.mug_id), hanger]
 
-    def _observation(self):
-        obs = super()._observation()
-        if self.hanger_obs == "point_cloud":
-            obs["point_cloud"] = self._cloud.copy()
-        return obs
+    def _extra_observation_spaces(self) -> dict[str, spaces.Space]:
+        if self.hanger_obs != "point_cloud":
+            return {}
+        bound = np.float32(POSITION_BOUND)
+        return {"point_cloud": spaces.Box(-bound, bound, (self.n_points, 3), dtype=np.float32)}
+
+    def _extra_observation(self) -> dict[str, np.ndarray]:
+        return {"point_cloud": self._cloud.copy()} if self.hanger_obs == "point_cloud" else {}
 
     # ------------------------------------------------------------------ success
     def handle_on_peg(self) -> bool:
@@ -372,18 +381,13 @@ class MugHangingEnv(ManipulationEnv):
         """Consecutive control steps, up to now, at the end of which the mug was hanging."""
         return self._hang_steps
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
+    def _after_reset(self) -> None:
         self._hang_steps = 0
-        return super().reset(seed=seed, options=options)
 
-    def step(self, action):
-        obs, _, _, truncated, info = super().step(action)
-        # The hang counter advances here, once per control step, after the physics; the success flag that the
-        # base step computed before the update is replaced.
+    def _after_physics(self) -> None:
+        # The one contact scan of a control step: the hang counter advances after the physics.
         self._hang_steps = self._hang_steps + 1 if self.mug_hanging() else 0
-        success = self.is_success()
-        info["is_success"] = success
-        return obs, float(success), bool(success and self.terminate_on_success), truncated, info
 
     def _check_success(self) -> bool:
-        return self._hang_steps >= HANG_STEPS and self.mug_hanging()
+        # A count of HANG_STEPS means the mug hung at the end of each of the last HANG_STEPS steps.
+        return self._hang_steps >= HANG_STEPS

@@ -34,7 +34,6 @@ def dataset_card_text(recipe: Recipe, log: RecordingLog) -> str:
     template = resources.files(__package__).joinpath("dataset_card.md").read_text()
     return template.format(
         env_id=task.env_id,
-        variant_kwarg=task.variant_kwarg,
         variant=recipe.variant,
         episodes=len(log.kept_seeds),
         seed_range=f"{tried[0]}..{tried[-1]}" if tried else "none",

@@ -36,8 +36,6 @@ class Recipe:
     def __post_init__(self) -> None:
         if int(self.episodes) < 1:
             raise ValueError(f"episodes={self.episodes}; expected an integer >= 1")
-        if self.obs_mode not in ("state", "pixels"):
-            raise ValueError(f"obs_mode={self.obs_mode!r}; expected 'state' or 'pixels'")
         if self.noise < 0:
             raise ValueError(f"noise={self.noise}; expected >= 0")
         self.episodes, self.seed, self.noise = int(self.episodes), int(self.seed), float(self.noise)

@@ -42,7 +42,7 @@ def make_env(recipe: Recipe):
     from gym_actionflow import find_task
 
     task = find_task(recipe.task)
-    return gym.make(task.env_id, obs_mode=recipe.obs_mode, **task.kwargs(recipe.variant), **recipe.env_kwargs)
+    return gym.make(task.env_id, **task.kwargs(recipe.variant, recipe.obs_mode), **recipe.env_kwargs)
 
 
 def _open_dataset(recipe: Recipe, root: Path, features: dict):
@@ -100,8 +100,7 @@ def record(recipe: Recipe, root: str | Path | None = None, progress: bool = True
     from tqdm import tqdm
 
     task = find_task(recipe.task)
-    if recipe.variant not in task.variants:
-        raise ValueError(f"{task.name} has no variant {recipe.variant!r}; expected one of {task.variants}")
+    task.kwargs(recipe.variant, recipe.obs_mode)  # a bad variant or obs mode fails before anything is written
     root = Path(root) if root is not None else HF_LEROBOT_HOME / recipe.repo_id
     env = make_env(recipe)
     features = schema.dataset_features(schema.observation_shapes(env.observation_space))
