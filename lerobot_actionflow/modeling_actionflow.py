@@ -1,11 +1,6 @@
-"""ActionFlowPolicy: the LeRobot policy. It glues the adaptation module, the flow and the network together.
-
-Data flow for one chunk::
-
-    token poses [B, T, N, 9] --(EEF frame of token 0 at the last step, x scale)--> local poses
-    token features / images / points --> encoders --> SceneTokens (once per chunk)
-    noise in the local frame --(K Euler steps of the flow, network velocity)--> local action poses
-    --(back to the world frame)--> actions [B, H, 10] = target EEF pose (9) + gripper
+"""ActionFlowPolicy: the LeRobot policy. It validates inputs, keeps the observation history and the action
+queue, and applies the runtime options (latency compensation, action smoothing); the model it wraps
+(:class:`~lerobot_actionflow.core.model.ActionFlowModel`) holds encode / loss / sample.
 """
 
 from __future__ import annotations
@@ -19,19 +14,8 @@ from torch import Tensor
 
 from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
 from lerobot_actionflow.core import geometry as g
-from lerobot_actionflow.core.adaptation import EEFFrame
-from lerobot_actionflow.core.flow import EuclideanFlow, SE3Flow, SE3State, integrate, time_grid
-from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
-from lerobot_actionflow.schema import (
-    ACTION,
-    ACTION_DIM,
-    GRIPPER_DIM,
-    POINT_CLOUD,
-    POSE_DIM,
-    POSE_LAYOUT,
-    TOKEN_FEATURES,
-    TOKEN_POSES,
-)
+from lerobot_actionflow.core.model import ActionFlowModel
+from lerobot_actionflow.schema import ACTION, ACTION_DIM, POSE_DIM, POSE_LAYOUT, TOKEN_FEATURES, TOKEN_POSES
 
 
 class ActionFlowPolicy(PreTrainedPolicy):
@@ -45,36 +29,13 @@ class ActionFlowPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config = config
-        self.flow = SE3Flow(GRIPPER_DIM) if config.action_space == "se3" else EuclideanFlow(GRIPPER_DIM)
-        inputs = config.input_features
-        n_tokens, feature_dim = inputs[TOKEN_FEATURES].shape
-        self.image_keys = tuple(config.image_features)
-        self.has_point_cloud = POINT_CLOUD in inputs
-        spec = NetworkSpec(
-            token_feature_dim=feature_dim,
-            tokens_per_step=n_tokens,
-            n_obs_steps=config.n_obs_steps,
-            horizon=config.horizon,
-            action_input_dim=GRIPPER_DIM if config.action_space == "se3" else self.flow.velocity_dim,
-            velocity_dim=self.flow.velocity_dim,
-            image_keys=self.image_keys,
-            point_cloud=self.has_point_cloud,
-        )
-        self.network = ActionFlowNetwork(
-            spec,
-            config.architecture,
-            config.dim,
-            config.num_heads,
-            config.ipa_layers,
-            config.transformer_layers,
-            config.ipa_head_dim,
-            config.ipa_query_points,
-            config.ipa_value_points,
-            config.dropout,
-        )
-        self.observation_keys = (TOKEN_POSES, TOKEN_FEATURES, *self.image_keys) + (
-            (POINT_CLOUD,) if self.has_point_cloud else ()
-        )
+        model = ActionFlowModel(config)
+        # Checkpoints hold the network's weights as `network.*` (the names from before the model existed): the
+        # network is registered here under that name, and the model, which has no weights of its own, is kept
+        # as a plain attribute so that its network is not registered a second time as `model.network.*`.
+        self.network = model.network
+        object.__setattr__(self, "model", model)
+        self.observation_keys = model.observation_keys
         self.reset()
 
     def get_optim_params(self) -> dict:
@@ -140,20 +101,6 @@ class ActionFlowPolicy(PreTrainedPolicy):
             out[key] = x
         return out
 
-    def _encode(self, obs: dict[str, Tensor]) -> tuple[EEFFrame, SceneTokens]:
-        """Adaptation module + encoders: the EEF frame of the current step and the scene tokens in it."""
-        rot, trans = g.pose9_to_rt(obs[TOKEN_POSES])  # [B, T, N, 3, 3], [B, T, N, 3]
-        frame = EEFFrame(rot[:, -1, 0], trans[:, -1, 0], self.config.translation_scale)
-        rot_l, trans_l = frame.to_local(rot, trans)
-        images = {k: obs[k] for k in self.image_keys}
-        points = frame.points_to_local(obs[POINT_CLOUD]) if self.has_point_cloud else None
-        return frame, self.network.encode_observation(obs[TOKEN_FEATURES], rot_l, trans_l, images, points)
-
-    def _velocity(self, scene: SceneTokens, x, t: Tensor) -> Tensor:
-        poses = self.flow.to_poses(x)
-        act_input = poses.extra if isinstance(self.flow, SE3Flow) else x
-        return self.network(scene, poses.rot, poses.trans, act_input, t)
-
     # ------------------------------------------------------------------ training
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
@@ -167,32 +114,10 @@ class ActionFlowPolicy(PreTrainedPolicy):
                 f"{ACTION} has shape {tuple(action.shape)}; expected (B, horizon={self.config.horizon}, 10): "
                 f"target EEF pose {POSE_LAYOUT} + gripper"
             )
-        frame, scene = self._encode(obs)
-        rot1, trans1 = frame.to_local(*g.pose9_to_rt(action))
-        x1 = self.flow.from_poses(SE3State(rot1, trans1, action[..., POSE_DIM:]))
-        b = action.shape[0]
-        x0 = self.flow.noise(b, self.config.horizon, device=action.device, dtype=action.dtype)
-        t = torch.rand(b, device=action.device, dtype=action.dtype)
-        xt, target = self.flow.interpolate(x0, x1, t)
-        sq_err = (self._velocity(scene, xt, t) - target) ** 2  # [B, H, D]
-
-        valid = torch.ones_like(sq_err[..., 0])
+        valid = torch.ones_like(action[..., 0], dtype=torch.bool)
         if self.config.mask_padded_actions and "action_is_pad" in batch:
-            valid = (~batch["action_is_pad"]).to(sq_err.dtype)
-        rot_end = 6 if isinstance(self.flow, SE3Flow) else 9
-        terms = {
-            "translation": sq_err[..., :3].mean(-1),
-            "rotation": sq_err[..., 3:rot_end].mean(-1),
-            "gripper": sq_err[..., rot_end:].mean(-1),
-        }
-        weights = {
-            "translation": self.config.translation_loss_weight,
-            "rotation": self.config.rotation_loss_weight,
-            "gripper": self.config.gripper_loss_weight,
-        }
-        denom = valid.sum().clamp_min(1.0)
-        losses = {k: (v * valid).sum() / denom for k, v in terms.items()}
-        loss = sum(weights[k] * losses[k] for k in losses)
+            valid = ~batch["action_is_pad"]
+        loss, losses = self.model.loss(obs, action, valid)
         return loss, {f"loss_{k}": v.item() for k, v in losses.items()}
 
     # ------------------------------------------------------------------ inference
@@ -205,20 +130,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
         ``action_space="se3"``, a ``[B, H, 10]`` tensor for ``"euclidean"``; by default it is drawn from
         torch's global generator.
         """
-        obs = self._check_and_stack(batch)
-        frame, scene = self._encode(obs)
-        b, device = obs[TOKEN_POSES].shape[0], obs[TOKEN_POSES].device
-        x = noise if noise is not None else self.flow.noise(b, self.config.horizon, device=device)
-        grid = time_grid(
-            self.config.num_inference_steps,
-            self.config.time_schedule,
-            self.config.time_schedule_rate,
-            device=device,
-        )
-        x = integrate(self.flow, lambda state, t: self._velocity(scene, state, t), x, grid)
-        poses = self.flow.to_poses(x)
-        rot, trans = frame.to_world(poses.rot, poses.trans)
-        return torch.cat([g.rt_to_pose9(rot, trans), poses.extra.clamp(-1.0, 1.0)], dim=-1)
+        return self.model.sample(self._check_and_stack(batch), noise)
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
@@ -253,7 +165,7 @@ def smooth_action(previous: Tensor, new: Tensor, alpha: float) -> Tensor:
     linearly, rotation along the geodesic from the previous to the new orientation."""
     rot_prev, trans_prev = g.pose9_to_rt(previous[..., :POSE_DIM])
     rot_new, trans_new = g.pose9_to_rt(new[..., :POSE_DIM])
-    rot = rot_prev @ g.so3_exp((1.0 - alpha) * g.so3_log(rot_prev.transpose(-1, -2) @ rot_new))
+    rot, _ = g.so3_geodesic(rot_prev, rot_new, 1.0 - alpha)
     trans = alpha * trans_prev + (1.0 - alpha) * trans_new
     gripper = alpha * previous[..., POSE_DIM:] + (1.0 - alpha) * new[..., POSE_DIM:]
     return torch.cat([g.rt_to_pose9(rot, trans), gripper], dim=-1)

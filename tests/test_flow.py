@@ -132,3 +132,15 @@ def test_noise_distributions():
     )
     assert abs(x.trans.mean().item()) < 0.03 and abs(x.trans.std().item() - 1) < 0.03
     assert x.rot.mean((0, 1)).abs().max() < 0.03  # uniform on SO(3): zero mean matrix
+
+
+@pytest.mark.parametrize("flow", [SE3Flow(2), EuclideanFlow(2)], ids=["se3", "euclidean"])
+def test_each_flow_describes_its_own_velocity_and_network_input(flow):
+    """What differs between the flows is said by the flow, so the model never branches on its type: the
+    translation, rotation and extra parts tile the velocity, and the network input has its declared width."""
+    covered = [i for part in flow.velocity_parts.values() for i in range(flow.velocity_dim)[part]]
+    assert covered == list(range(flow.velocity_dim))
+    assert len(range(flow.velocity_dim)[flow.velocity_parts["extra"]]) == flow.extra_dim == 2
+    x = flow.noise(3, 5)
+    assert flow.batch_size(x) == 3
+    assert flow.network_input(x).shape == (3, 5, flow.network_input_dim)

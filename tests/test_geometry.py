@@ -150,3 +150,19 @@ def test_pose9_errors():
     assert torch.isclose(trans_err, torch.tensor(0.05, dtype=f64)) and torch.isclose(
         rot_err, torch.tensor(0.3, dtype=f64)
     )
+
+
+def test_so3_geodesic_endpoints_and_constant_speed():
+    """The geodesic the flow and the action smoothing share: R_a at t = 0, R_b at t = 1, the angle from R_a
+    growing linearly with t, and the returned rotation vector the whole way's Log(R_a^T R_b)."""
+    gen = torch.Generator().manual_seed(3)
+    rot_a = g.random_rotation((4,), generator=gen, dtype=torch.float64)
+    rot_b = g.random_rotation((4,), generator=gen, dtype=torch.float64)
+    start, omega = g.so3_geodesic(rot_a, rot_b, 0.0)
+    end, _ = g.so3_geodesic(rot_a, rot_b, 1.0)
+    torch.testing.assert_close(start, rot_a)
+    torch.testing.assert_close(end, rot_b)
+    torch.testing.assert_close(omega, g.so3_log(rot_a.transpose(-1, -2) @ rot_b))
+    t = torch.tensor([0.1, 0.3, 0.5, 0.9], dtype=torch.float64)[:, None]
+    mid, _ = g.so3_geodesic(rot_a, rot_b, t)
+    torch.testing.assert_close(g.geodesic_distance(rot_a, mid), t[:, 0] * omega.norm(dim=-1))

@@ -7,6 +7,7 @@ from helpers import make_config
 
 from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, make_actionflow_pre_post_processors
 from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.model import ActionFlowModel
 from lerobot_actionflow.modeling_actionflow import smooth_action
 
 OBS_KEYS = ("observation.token_poses", "observation.token_features")
@@ -27,6 +28,35 @@ def test_builds_with_defaults_and_trains_one_step():
     assert all(p.grad is not None for p in policy.network.head.parameters())
 
 
+def test_the_model_alone_gives_the_policys_chunk_and_encodes_once_per_chunk():
+    """The model under the policy is usable without LeRobot's wrapper: with the same seed it samples the
+    policy's chunk. The observation is encoded once per chunk and the network runs once per Euler step."""
+    torch.manual_seed(0)
+    policy = ActionFlowPolicy(make_config(num_inference_steps=3)).eval()
+    model = policy.model
+    assert isinstance(model, ActionFlowModel) and model.network is policy.network
+    obs = {k: v for k, v in _batch().items() if k in OBS_KEYS}
+    torch.manual_seed(4)
+    expected = policy.predict_action_chunk(obs)
+    calls = {"encode": 0, "velocity": 0}
+    encode, forward = model.network.encode_observation, model.network.forward
+
+    def counting(name, fn):
+        def wrapped(*args, **kwargs):
+            calls[name] += 1
+            return fn(*args, **kwargs)
+
+        return wrapped
+
+    model.network.encode_observation = counting("encode", encode)
+    model.network.forward = counting("velocity", forward)
+    torch.manual_seed(4)
+    with torch.no_grad():
+        chunk = model.sample(obs)
+    torch.testing.assert_close(chunk, expected, atol=0, rtol=0)
+    assert calls == {"encode": 1, "velocity": 3}
+
+
 def test_loss_weights_are_applied():
     batch = _batch()
     policy = ActionFlowPolicy(make_config(rotation_loss_weight=0.0, gripper_loss_weight=0.0))
@@ -43,7 +73,7 @@ def test_padded_actions_are_left_out_of_the_loss():
     policy = ActionFlowPolicy(make_config())
     # A fixed zero velocity, so the loss is a function of the per-step targets alone (through attention,
     # padded tokens do influence the network's other outputs, as in any chunked policy).
-    policy._velocity = lambda scene, x, t: torch.zeros(4, 16, 7)
+    policy.model.velocity = lambda scene, x, t: torch.zeros(4, 16, 7)
     torch.manual_seed(0)
     loss_a, _ = policy.forward(batch)
     batch["action"][:, 1:, :3] += 5.0  # only padded steps change

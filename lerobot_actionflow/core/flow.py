@@ -17,7 +17,10 @@ Because velocities are expressed in each action's own frame, a network that is i
 SE(3) transform yields samples that transform with it (paper appendix, "Equivariant Generation").
 
 A velocity vector is laid out as ``[v (3), w (3), u (m)]`` for SE(3) and as the plain vector for the
-Euclidean flow, so the network head is the same size-agnostic linear layer for both.
+Euclidean flow, so the network head is the same size-agnostic linear layer for both. Each flow says what is
+specific to it, so that the model never asks which flow it holds: ``velocity_parts`` (which slice of the
+velocity is translation, rotation and extras, for the loss terms), ``network_input_dim`` and
+``network_input(x)`` (what the network sees of a state besides its poses), and ``to_poses`` / ``from_poses``.
 """
 
 from __future__ import annotations
@@ -78,6 +81,10 @@ class SE3Flow:
     def __init__(self, extra_dim: int):
         self.extra_dim = extra_dim
         self.velocity_dim = 6 + extra_dim
+        self.velocity_parts = {"translation": slice(0, 3), "rotation": slice(3, 6), "extra": slice(6, None)}
+        """Which slice of a velocity ``[..., 6 + m]`` is translation, rotation and extras."""
+        self.network_input_dim = extra_dim
+        """The network sees each action's extras (the gripper) as features, and its pose as a pose."""
 
     def noise(
         self,
@@ -99,8 +106,7 @@ class SE3Flow:
         which equal :meth:`conditional_velocity` without its division by ``1 - t``.
         """
         tb = t[:, None, None]  # [B, 1, 1]
-        omega = g.so3_log(x0.rot.transpose(-1, -2) @ x1.rot)  # [B, H, 3]
-        rot_t = x0.rot @ g.so3_exp(tb * omega)
+        rot_t, omega = g.so3_geodesic(x0.rot, x1.rot, tb)  # [B, H, 3, 3], [B, H, 3]
         trans_t = (1 - tb) * x0.trans + tb * x1.trans
         extra_t = (1 - tb) * x0.extra + tb * x1.extra
         v = torch.einsum("bhji,bhj->bhi", rot_t, x1.trans - x0.trans)
@@ -131,6 +137,12 @@ class SE3Flow:
     def from_poses(self, x: SE3State) -> SE3State:
         return x
 
+    def network_input(self, x: SE3State) -> Tensor:
+        return x.extra
+
+    def batch_size(self, x: SE3State) -> int:
+        return x.trans.shape[0]
+
 
 class EuclideanFlow:
     """Rectified flow on the flat action vector ``[p (3), rot6d (6), extras (m)]`` (paper appendix).
@@ -142,6 +154,10 @@ class EuclideanFlow:
     def __init__(self, extra_dim: int):
         self.extra_dim = extra_dim
         self.velocity_dim = 9 + extra_dim
+        self.velocity_parts = {"translation": slice(0, 3), "rotation": slice(3, 9), "extra": slice(9, None)}
+        """Which slice of a velocity ``[..., 9 + m]`` is translation, rotation (6D) and extras."""
+        self.network_input_dim = self.velocity_dim
+        """The network sees the whole flat state of each action as features (and its poses as poses)."""
 
     def noise(
         self,
@@ -169,9 +185,23 @@ class EuclideanFlow:
     def from_poses(self, x: SE3State) -> Tensor:
         return torch.cat([x.trans, g.matrix_to_rot6d(x.rot), x.extra], dim=-1)
 
+    def network_input(self, x: Tensor) -> Tensor:
+        return x
+
+    def batch_size(self, x: Tensor) -> int:
+        return x.shape[0]
+
 
 Flow = SE3Flow | EuclideanFlow
 VelocityFn = Callable[[object, Tensor], Tensor]
+
+
+def make_flow(action_space: str, extra_dim: int) -> Flow:
+    """The flow of an ``action_space``: ``"se3"`` (the paper's) or ``"euclidean"`` (flat vector ablation)."""
+    flows = {"se3": SE3Flow, "euclidean": EuclideanFlow}
+    if action_space not in flows:
+        raise ValueError(f"action_space={action_space!r}; expected one of {tuple(flows)}")
+    return flows[action_space](extra_dim)
 
 
 def integrate(flow: Flow, velocity_fn: VelocityFn, x0, grid: Tensor, start: int = 0):
@@ -180,7 +210,7 @@ def integrate(flow: Flow, velocity_fn: VelocityFn, x0, grid: Tensor, start: int 
     ``velocity_fn`` receives the flow's native state (``SE3State`` or a tensor) and returns ``[B, H, D]``.
     """
     x = x0
-    batch = (x0.trans if isinstance(x0, SE3State) else x0).shape[0]
+    batch = flow.batch_size(x0)
     for k in range(start, grid.numel() - 1):
         t = grid[k].expand(batch)
         x = flow.step(x, velocity_fn(x, t), grid[k + 1] - grid[k])

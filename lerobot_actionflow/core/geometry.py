@@ -116,6 +116,17 @@ def so3_log(rot: Tensor) -> Tensor:
     return scale[..., None] * v
 
 
+def so3_geodesic(rot_a: Tensor, rot_b: Tensor, t: Tensor | float) -> tuple[Tensor, Tensor]:
+    """The rotation a fraction ``t`` of the way along the geodesic from ``rot_a`` to ``rot_b``,
+    ``R_a Exp(t Log(R_a^T R_b))``, and the body-frame rotation vector of the whole way, ``Log(R_a^T R_b)``.
+
+    ``[*, 3, 3], [*, 3, 3]`` and ``t`` broadcastable against ``[*, 3]`` -> ``[*, 3, 3], [*, 3]``. The flow's
+    path and the policy's action smoothing both move along it.
+    """
+    omega = so3_log(rot_a.transpose(-1, -2) @ rot_b)  # [*, 3]
+    return rot_a @ so3_exp(t * omega), omega
+
+
 def rot6d_to_matrix(rot6d: Tensor) -> Tensor:
     """6D rotation ``[*, 6]`` (first column then second column) -> rotation matrix ``[*, 3, 3]``.
 

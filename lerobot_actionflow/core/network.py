@@ -27,14 +27,19 @@ from lerobot_actionflow.core.ipa import SE3InvariantTransformer, transformer_enc
 
 @dataclass
 class SceneTokens:
-    """Encoded observation tokens, computed once per action chunk and reused at every flow step.
+    """Everything the network needs that does not change during a chunk's flow: the encoded observation
+    tokens and the constant part of the action tokens, computed once per chunk and reused at every Euler step.
 
-    ``features [B, M, C]``, ``rot [B, M, 3, 3]``, ``trans [B, M, 3]`` (scaled EEF frame, not squashed).
+    ``features [B, M, C]``, ``rot [B, M, 3, 3]``, ``trans [B, M, 3]`` (scaled EEF frame, not squashed),
+    ``squashed_trans [B, M, 3]`` (what IPA sees), ``action_embed [H, C]`` (the action tokens' learnable
+    feature plus their index in the chunk).
     """
 
     features: Tensor
     rot: Tensor
     trans: Tensor
+    squashed_trans: Tensor
+    action_embed: Tensor
 
 
 @dataclass
@@ -132,7 +137,7 @@ class ActionFlowNetwork(nn.Module):
         images: dict[str, Tensor] | None = None,
         points: Tensor | None = None,
     ) -> SceneTokens:
-        """Encode the observation once per chunk.
+        """Encode the observation (and the constant part of the action tokens) once per chunk.
 
         features ``[B, T, N, F]``; rot ``[B, T, N, 3, 3]``, trans ``[B, T, N, 3]`` in the scaled EEF frame;
         images ``{key: [B, T, 3, H, W]}`` in [0, 1], posed at the EEF token of their step; points
@@ -161,23 +166,18 @@ class ActionFlowNetwork(nn.Module):
             s = s + self.pose_embed(pose_features(rot, trans))
         if self.architecture == "single_token":
             s = self.obs_pool(s.flatten(1))[:, None]  # [B, 1, C]; its pose is unused
-        return SceneTokens(s, rot, trans)
+        return SceneTokens(s, rot, trans, squash(trans), self.action_feature + self.action_index_embed)
 
     def forward(
         self, scene: SceneTokens, act_rot: Tensor, act_trans: Tensor, act_input: Tensor, t: Tensor
     ) -> Tensor:
         """Velocity ``[B, H, D_v]`` of action tokens at ``act_rot [B, H, 3, 3]``, ``act_trans [B, H, 3]``
         (scaled EEF frame), with per-step inputs ``act_input [B, H, a]`` at flow time ``t [B]``."""
-        a = (
-            self.action_feature
-            + self.action_index_embed
-            + self.time_embed(t)[:, None]
-            + self.action_input(act_input)
-        )  # [B, H, C]
+        a = scene.action_embed + self.time_embed(t)[:, None] + self.action_input(act_input)  # [B, H, C]
         if self.architecture == "ipa":
             s = torch.cat([scene.features, a], dim=1)
             rot = torch.cat([scene.rot, act_rot], dim=1)
-            trans = squash(torch.cat([scene.trans, act_trans], dim=1))
+            trans = torch.cat([scene.squashed_trans, squash(act_trans)], dim=1)
             out = self.mixer(s, rot, trans)
         else:
             a = a + self.pose_embed(pose_features(act_rot, act_trans))

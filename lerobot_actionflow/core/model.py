@@ -1,0 +1,130 @@
+"""ActionFlowModel: the adaptation module, the flow and the velocity network joined: encode / loss / sample.
+
+Plain torch, testable alone: it reads an ``ActionFlowConfig`` (any object with its fields) and takes
+observation tensors that already have a history axis. ``ActionFlowPolicy`` (``modeling_actionflow``) wraps it
+with what LeRobot needs: input validation, the observation and action queues, and the runtime options.
+
+Data flow for one chunk::
+
+    token poses [B, T, N, 9] --(EEF frame of token 0 at the last step, x scale)--> local poses
+    token features / images / points --> encoders --> SceneTokens (once per chunk)
+    noise in the local frame --(K Euler steps of the flow, network velocity)--> local action poses
+    --(back to the world frame)--> actions [B, H, 10] = target EEF pose (9) + gripper
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.adaptation import EEFFrame
+from lerobot_actionflow.core.flow import SE3State, integrate, make_flow, time_grid
+from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
+from lerobot_actionflow.schema import GRIPPER_DIM, POINT_CLOUD, POSE_DIM, TOKEN_FEATURES, TOKEN_POSES
+
+LOSS_TERMS = {"translation": "translation", "rotation": "rotation", "gripper": "extra"}
+"""Loss term -> the part of the flow's velocity it measures (the flow's extras are the gripper command)."""
+
+
+class ActionFlowModel(nn.Module):
+    """The flow-matching model: ``encode`` an observation once, then ``loss`` (training) or ``sample``."""
+
+    def __init__(self, config):
+        super().__init__()
+        self.config = config
+        self.flow = make_flow(config.action_space, GRIPPER_DIM)
+        inputs = config.input_features
+        n_tokens, feature_dim = inputs[TOKEN_FEATURES].shape
+        self.image_keys = tuple(config.image_features)
+        self.has_point_cloud = POINT_CLOUD in inputs
+        self.observation_keys = (TOKEN_POSES, TOKEN_FEATURES, *self.image_keys) + (
+            (POINT_CLOUD,) if self.has_point_cloud else ()
+        )
+        """The observation keys the model reads, each ``[B, T, ...]``."""
+        spec = NetworkSpec(
+            token_feature_dim=feature_dim,
+            tokens_per_step=n_tokens,
+            n_obs_steps=config.n_obs_steps,
+            horizon=config.horizon,
+            action_input_dim=self.flow.network_input_dim,
+            velocity_dim=self.flow.velocity_dim,
+            image_keys=self.image_keys,
+            point_cloud=self.has_point_cloud,
+        )
+        self.network = ActionFlowNetwork(
+            spec,
+            config.architecture,
+            config.dim,
+            config.num_heads,
+            config.ipa_layers,
+            config.transformer_layers,
+            config.ipa_head_dim,
+            config.ipa_query_points,
+            config.ipa_value_points,
+            config.dropout,
+        )
+
+    def encode(self, obs: dict[str, Tensor]) -> tuple[EEFFrame, SceneTokens]:
+        """Adaptation module + encoders, once per chunk: the EEF frame of the current step and the scene
+        tokens in it. ``obs`` holds :attr:`observation_keys`, each ``[B, T, ...]``."""
+        rot, trans = g.pose9_to_rt(obs[TOKEN_POSES])  # [B, T, N, 3, 3], [B, T, N, 3]
+        frame = EEFFrame(rot[:, -1, 0], trans[:, -1, 0], self.config.translation_scale)
+        rot_l, trans_l = frame.to_local(rot, trans)
+        images = {k: obs[k] for k in self.image_keys}
+        points = frame.points_to_local(obs[POINT_CLOUD]) if self.has_point_cloud else None
+        return frame, self.network.encode_observation(obs[TOKEN_FEATURES], rot_l, trans_l, images, points)
+
+    def velocity(self, scene: SceneTokens, x, t: Tensor) -> Tensor:
+        """The network's velocity ``[B, H, D]`` at the flow's native state ``x`` and flow time ``t [B]``."""
+        poses = self.flow.to_poses(x)
+        return self.network(scene, poses.rot, poses.trans, self.flow.network_input(x), t)
+
+    def loss(self, obs: dict[str, Tensor], action: Tensor, valid: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        """Flow-matching loss of world-frame actions ``[B, H, 10]``: the weighted mean squared error of the
+        translation, rotation and gripper velocity terms over the ``valid [B, H]`` action steps.
+
+        Returns the loss and each unweighted term.
+        """
+        frame, scene = self.encode(obs)
+        rot1, trans1 = frame.to_local(*g.pose9_to_rt(action[..., :POSE_DIM]))
+        x1 = self.flow.from_poses(SE3State(rot1, trans1, action[..., POSE_DIM:]))
+        b = action.shape[0]
+        x0 = self.flow.noise(b, self.config.horizon, device=action.device, dtype=action.dtype)
+        t = torch.rand(b, device=action.device, dtype=action.dtype)
+        xt, target = self.flow.interpolate(x0, x1, t)
+        sq_err = (self.velocity(scene, xt, t) - target) ** 2  # [B, H, D]
+
+        valid = valid.to(sq_err.dtype)
+        denom = valid.sum().clamp_min(1.0)
+        parts = self.flow.velocity_parts
+        terms = {
+            name: (sq_err[..., parts[part]].mean(-1) * valid).sum() / denom
+            for name, part in LOSS_TERMS.items()
+        }
+        weights = {
+            "translation": self.config.translation_loss_weight,
+            "rotation": self.config.rotation_loss_weight,
+            "gripper": self.config.gripper_loss_weight,
+        }
+        return sum(weights[k] * terms[k] for k in terms), terms
+
+    def sample(self, obs: dict[str, Tensor], noise=None) -> Tensor:
+        """A chunk of world-frame actions ``[B, horizon, 10]`` from ``num_inference_steps`` Euler steps.
+
+        ``noise`` (optional) is the initial flow state in the EEF frame (an ``SE3State`` for ``se3``, a
+        ``[B, H, 10]`` tensor for ``euclidean``); by default it is drawn from torch's global generator.
+        """
+        frame, scene = self.encode(obs)
+        b, device = obs[TOKEN_POSES].shape[0], obs[TOKEN_POSES].device
+        x = noise if noise is not None else self.flow.noise(b, self.config.horizon, device=device)
+        grid = time_grid(
+            self.config.num_inference_steps,
+            self.config.time_schedule,
+            self.config.time_schedule_rate,
+            device=device,
+        )
+        x = integrate(self.flow, lambda state, t: self.velocity(scene, state, t), x, grid)
+        poses = self.flow.to_poses(x)
+        rot, trans = frame.to_world(poses.rot, poses.trans)
+        return torch.cat([g.rt_to_pose9(rot, trans), poses.extra.clamp(-1.0, 1.0)], dim=-1)
