@@ -28,7 +28,7 @@ TIME_SCHEDULES = ("uniform", "exponential")
 class ActionFlowConfig(PreTrainedConfig):
     """ActionFlow: SE(3) flow matching over action pose sequences with an SE(3) Invariant Transformer.
 
-    Inputs (see the token schema in the project README):
+    Inputs (the token schema: lerobot_actionflow/schema.py):
         ``observation.token_poses`` (N, 9) world poses, token 0 = end effector; ``observation.token_features``
         (N, F); optionally ``observation.images.*`` (3, H, W) posed at the end effector and
         ``observation.point_cloud`` (P, 3) world points. ``observation.state`` may be present; it is not
