@@ -2,7 +2,7 @@
 
 Every tool converts through this module (the recorder, the LeRobot env config, the rerun visualiser, the
 benchmarks and the tests); a new observation modality is added here, in one place. It is a leaf: it imports
-nothing else of ours.
+nothing else of ours (and LeRobot only inside the functions that build LeRobot's feature objects).
 
 | env key | dataset / policy key | LeRobot type | shape |
 |---|---|---|---|
@@ -21,10 +21,13 @@ An env observation is a dict of arrays with the cameras nested under ``pixels``;
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from lerobot.configs.types import FeatureType, PolicyFeature
+
+if TYPE_CHECKING:
+    from lerobot.configs.types import PolicyFeature
 
 # ---------------------------------------------------------------------------- pose and action layout
 POSE_NAMES = ("x", "y", "z", "r00", "r10", "r20", "r01", "r11", "r21")
@@ -50,12 +53,12 @@ ACTION = "action"
 PIXELS = "pixels"
 """The env key under which the cameras are nested: ``obs["pixels"]["<cam>"]``."""
 
-_ENV_KEYS: dict[str, tuple[str, FeatureType]] = {
-    "token_poses": (TOKEN_POSES, FeatureType.STATE),
-    "token_features": (TOKEN_FEATURES, FeatureType.STATE),
-    "agent_pos": (STATE, FeatureType.STATE),
-    "environment_state": (ENV_STATE, FeatureType.ENV),
-    "point_cloud": (POINT_CLOUD, FeatureType.STATE),
+_ENV_KEYS: dict[str, tuple[str, str]] = {  # env key: (dataset / policy key, LeRobot FeatureType name)
+    "token_poses": (TOKEN_POSES, "STATE"),
+    "token_features": (TOKEN_FEATURES, "STATE"),
+    "agent_pos": (STATE, "STATE"),
+    "environment_state": (ENV_STATE, "ENV"),
+    "point_cloud": (POINT_CLOUD, "STATE"),
 }
 _NAMES = {"agent_pos": list(STATE_NAMES)}
 CAMERAS = ("wrist",)
@@ -129,9 +132,11 @@ def dataset_features(shapes: Mapping[str, tuple[int, ...]]) -> dict[str, dict]:
 def env_features(shapes: Mapping[str, tuple[int, ...]]) -> dict[str, PolicyFeature]:
     """LeRobot ``EnvConfig.features``: ``{flat env key: PolicyFeature}`` with the env's own shapes (cameras
     (H, W, 3)), plus the action; LeRobot maps them to policy keys with :data:`FEATURES_MAP`."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
     features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
     for env_key, shape in shapes.items():
-        kind = FeatureType.VISUAL if _is_camera(env_key) else _ENV_KEYS[env_key][1]
+        kind = FeatureType.VISUAL if _is_camera(env_key) else FeatureType[_ENV_KEYS[env_key][1]]
         features[env_key] = PolicyFeature(type=kind, shape=tuple(shape))
     return features
 
@@ -141,15 +146,18 @@ def policy_features(
 ) -> tuple[dict[str, PolicyFeature], dict[str, PolicyFeature]]:
     """``(input_features, output_features)`` of a policy config for observations with these shapes: what
     LeRobot derives from a dataset or an env (cameras become channel-first (3, H, W))."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    features = env_features(shapes)
     inputs = {}
-    for env_key, feature in env_features(shapes).items():
+    for env_key, feature in features.items():
         if env_key == ACTION:
             continue
         if feature.type is FeatureType.VISUAL:
             h, w, c = feature.shape
             feature = PolicyFeature(type=FeatureType.VISUAL, shape=(c, h, w))
         inputs[policy_key(env_key)] = feature
-    return inputs, {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+    return inputs, {ACTION: features[ACTION]}
 
 
 # ---------------------------------------------------------------------------- conversions
