@@ -9,7 +9,8 @@ Without an observation (``act()``) everything is read from the simulator.
 The mug is grasped top-down around its body, 1.7 cm below the rim, the fingers closing across it (along the
 mug's y axis, clear of the handle): with the position-servo fingers a rim grasp (one pad inside, one
 outside the 4 mm wall) squeezes with under 1 N, while the 6.4 cm body gets about 10 N per finger. The mug is
-carried upright, turned so that the handle's opening faces along the peg, brought 5 cm beyond the peg's tip
+carried upright, turned (the short way: the side of the peg the mug's body ends up on follows from how it
+sits in the hand) so that the handle's opening faces along the peg, brought 5 cm beyond the peg's tip
 on its axis, slid down the peg to 7 cm from the pole axis, lowered 1 cm and released; the hand then lifts.
 
 ``noise`` scales the waypoint offsets (grasp point, the insertion line across the peg, the seat along it)
@@ -30,7 +31,7 @@ from gym_actionflow.experts.base import (
     tcp_for_object,
     top_down,
 )
-from gym_actionflow.geometry import pose9_to_rt, yaw_of
+from gym_actionflow.geometry import pose9_to_rt, rotation_angle, yaw_of
 from gym_actionflow.tasks.mug_hanging import (
     HOLE_CENTER,
     MUG_HEIGHT,
@@ -55,10 +56,6 @@ PRECISE_JITTER = 0.3
 side) and the slide of the handle onto the peg (~6 mm clearance)."""
 LIFTED = 0.05
 """The mug's bottom this far above the table (m) counts as lifted (a hung mug's is about 0.14 m up)."""
-
-
-def wrap(angle: float) -> float:
-    return float((angle + np.pi) % (2 * np.pi) - np.pi)
 
 
 class MugHangingExpert(ScriptedExpert):
@@ -114,16 +111,23 @@ class MugHangingExpert(ScriptedExpert):
         yield from self.move_to(grasp + [0, 0, 0.12], grasp_rot, speed=0.015)
 
     def hang_rotation(self, in_hand) -> np.ndarray:
-        """Mug rotation for the slide: upright, the handle's opening (mug y) along the peg's heading. Of the
-        two such rotations (mug body on either side of the peg) the one with the TCP yaw nearest home."""
+        """Mug rotation for the slide: upright, the handle's opening (mug y) along the peg's heading.
+
+        Of the two such rotations (mug body on either side of the peg) the one that needs the smaller turn of
+        the hand from where it is now. The choice is then a function of what a policy observes (the mug's yaw
+        in the hand), and the turn is at most about 90 degrees, so it is started in the right direction and
+        stays committed to it. (Choosing by the TCP yaw nearest home, as v0 of this expert did, is a tie
+        between +-90 degrees on every layout, broken by a few degrees of grasp noise: a coin flip that no
+        observation predicts, which made the demonstrations bimodal.)"""
         h_rot = self.hanger()[1]
         heading = h_rot[:, 0]
+        tcp_rot = self.tcp()[1]
         options = []
         for sign in (1.0, -1.0):
             y = sign * heading
             z = np.array([0.0, 0.0, 1.0])
             options.append(np.stack([np.cross(y, z), y, z], axis=1))
-        return min(options, key=lambda r: abs(wrap(yaw_of(r @ in_hand[1].T))))
+        return min(options, key=lambda r: rotation_angle(r @ in_hand[1].T, tcp_rot))
 
     def hang(self):
         h_pos, h_rot = self.hanger()
