@@ -54,6 +54,10 @@ class ActionFlowConfig(PreTrainedConfig):
 
     # Adaptation module: poses in the current EEF frame, translations x scale, tanh before the network.
     translation_scale: float = 10.0
+    # The network sees translations as squash_limit * tanh(t / squash_limit). 1 is the paper's tanh, which at
+    # scale 10 flattens everything beyond ~0.2 m; 3 keeps far entities and far actions apart (measured:
+    # eval/results/ablate.md). Checkpoints saved before this field existed load with 1.
+    squash_limit: float = 3.0
 
     # Flow matching.
     action_space: str = "se3"  # "se3" (paper) or "euclidean" (flat [p, rot6d, gripper] vector)
@@ -116,6 +120,8 @@ class ActionFlowConfig(PreTrainedConfig):
             raise ValueError(
                 f"dim={self.dim}, num_heads={self.num_heads}; dim must be divisible by num_heads"
             )
+        if self.squash_limit <= 0:
+            raise ValueError(f"squash_limit={self.squash_limit}; expected > 0 (1 is the paper's tanh)")
         if self.translation_scale <= 0:
             raise ValueError(f"translation_scale={self.translation_scale}; expected > 0")
         if self.control_fps <= 0:

@@ -5,10 +5,14 @@ queue, and applies the runtime options (latency compensation, action smoothing);
 
 from __future__ import annotations
 
+import json
+import logging
 import time
 from collections import deque
+from pathlib import Path
 
 import torch
+from lerobot.configs import PreTrainedConfig
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
@@ -16,6 +20,29 @@ from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
 from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.model import ActionFlowModel
 from lerobot_actionflow.schema import ACTION, ACTION_DIM, POSE_DIM, POSE_LAYOUT, TOKEN_FEATURES, TOKEN_POSES
+
+LEGACY_DEFAULTS = {"squash_limit": 1.0}
+"""Config fields whose default changed after checkpoints were published, with the value those checkpoints were
+trained with: a saved config that lacks the field gets this value back on loading, not today's default."""
+_HUB_KWARGS = ("force_download", "resume_download", "proxies", "token", "cache_dir", "local_files_only",
+               "revision")
+
+
+def saved_config_keys(pretrained_name_or_path: str | Path, **hub_kwargs) -> set[str] | None:
+    """The field names in a checkpoint's saved ``config.json`` (a local folder or a Hub repo); None when it
+    cannot be read (LeRobot's own loading then reports the problem)."""
+    path = Path(pretrained_name_or_path)
+    try:
+        if path.is_dir():
+            config_file = path / "config.json"
+        else:
+            from huggingface_hub import hf_hub_download
+
+            config_file = hf_hub_download(repo_id=str(pretrained_name_or_path), filename="config.json",
+                                          **hub_kwargs)
+        return set(json.loads(Path(config_file).read_text()))
+    except Exception:  # noqa: BLE001 - missing or unreadable: not ours to report
+        return None
 
 
 class ActionFlowPolicy(PreTrainedPolicy):
@@ -40,6 +67,22 @@ class ActionFlowPolicy(PreTrainedPolicy):
 
     def get_optim_params(self) -> dict:
         return self.parameters()
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, *, config=None, **kwargs):
+        """LeRobot's loading, plus: a checkpoint saved before a default changed keeps the value it was trained
+        with (:data:`LEGACY_DEFAULTS`), unless the caller set the field to something else."""
+        hub = {k: kwargs[k] for k in _HUB_KWARGS if k in kwargs}
+        if config is None:
+            config = PreTrainedConfig.from_pretrained(pretrained_name_or_path, **hub)
+        saved = saved_config_keys(pretrained_name_or_path, **hub)
+        if saved is not None:
+            for name, legacy in LEGACY_DEFAULTS.items():
+                default = ActionFlowConfig.__dataclass_fields__[name].default
+                if name not in saved and getattr(config, name) == default and default != legacy:
+                    logging.info(f"{pretrained_name_or_path}: saved before '{name}' existed; using {legacy}")
+                    setattr(config, name, legacy)
+        return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
 
     def reset(self):
         """Clear the observation history and the action queue; call on every ``env.reset()``."""

@@ -44,3 +44,21 @@ def test_state_dict_keys_and_shapes_are_unchanged():
     for name, overrides in KEY_CONFIGS.items():
         state = ActionFlowPolicy(config(**overrides)).state_dict()
         assert {k: list(v.shape) for k, v in state.items()} == expected[name], name
+
+
+def test_a_checkpoint_saved_before_a_default_changed_keeps_its_value(tmp_path):
+    """squash_limit's default became 3 after checkpoints with the paper's tanh (1) were saved without the
+    field: they must load with 1, also through lerobot-eval's path (config parsed first, then passed in),
+    while a new checkpoint and an explicit setting keep theirs."""
+    from lerobot.configs import PreTrainedConfig
+
+    path = FIXTURES / "policy_ipa_se3"
+    assert "squash_limit" not in json.loads((path / "config.json").read_text())
+    assert ActionFlowPolicy.from_pretrained(path).config.squash_limit == 1.0
+    parsed = PreTrainedConfig.from_pretrained(path)
+    assert parsed.squash_limit == 3.0  # LeRobot alone would use today's default ...
+    assert ActionFlowPolicy.from_pretrained(path, config=parsed).config.squash_limit == 1.0  # ... not here
+    parsed.squash_limit = 5.0
+    assert ActionFlowPolicy.from_pretrained(path, config=parsed).config.squash_limit == 5.0
+    ActionFlowPolicy(config(squash_limit=3.0)).save_pretrained(tmp_path / "new")
+    assert ActionFlowPolicy.from_pretrained(tmp_path / "new").config.squash_limit == 3.0

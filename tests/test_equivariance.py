@@ -63,11 +63,13 @@ def _observation(seed: int, b: int = 3, t: int = 2):
 
 @pytest.mark.parametrize("architecture", ["ipa", "multi_token", "single_token"])
 @pytest.mark.parametrize("action_space", ["se3", "euclidean"])
-def test_policy_is_equivariant(architecture, action_space):
+@pytest.mark.parametrize("squash_limit", [1.0, 3.0])
+def test_policy_is_equivariant(architecture, action_space, squash_limit):
     """Same seed, every observed pose (tokens and the pose part of the state) moved by g: every generated
     action pose moves by g, the gripper command is unchanged."""
     torch.manual_seed(0)
-    policy = ActionFlowPolicy(make_config(architecture=architecture, action_space=action_space)).eval()
+    cfg = make_config(architecture=architecture, action_space=action_space, squash_limit=squash_limit)
+    policy = ActionFlowPolicy(cfg).eval()
     obs = _observation(1)
     d_rot, d_trans = random_se3(2)
     moved = dict(obs)

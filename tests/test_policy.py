@@ -7,6 +7,7 @@ from helpers import make_config
 
 from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, make_actionflow_pre_post_processors
 from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.adaptation import squash
 from lerobot_actionflow.core.model import ActionFlowModel
 from lerobot_actionflow.modeling_actionflow import smooth_action
 
@@ -55,6 +56,22 @@ def test_the_model_alone_gives_the_policys_chunk_and_encodes_once_per_chunk():
         chunk = model.sample(obs)
     torch.testing.assert_close(chunk, expected, atol=0, rtol=0)
     assert calls == {"encode": 1, "velocity": 3}
+
+
+def test_squash_limit_bounds_translations_and_keeps_near_ones():
+    """The network's translation squash is bounded by its limit, is the paper's tanh at limit 1, and a larger
+    limit keeps far positions apart that the tanh ties together."""
+    x = torch.linspace(-20.0, 20.0, 401, dtype=torch.float64)
+    assert torch.equal(squash(x), torch.tanh(x))
+    for limit in (1.0, 3.0, 10.0):
+        y = squash(x, limit)
+        assert y.abs().max() <= limit and torch.all(y[1:] >= y[:-1])
+        inside = x.abs() <= 3 * limit  # short of float saturation: strictly increasing
+        assert torch.all(y[inside][1:] > y[inside][:-1])
+        near = x.abs() <= 0.1 * limit
+        assert torch.allclose(y[near], x[near], rtol=0.01)
+    far = torch.tensor([2.5, 3.0])  # 0.25 m and 0.3 m at the default scale x10
+    assert (squash(far)[1] - squash(far)[0]) < 0.01 < (squash(far, 3.0)[1] - squash(far, 3.0)[0])
 
 
 def test_loss_weights_are_applied():
@@ -228,6 +245,7 @@ def test_validate_features_names_what_is_missing():
         ({"n_action_steps": 20, "horizon": 16}, "n_action_steps=20, horizon=16"),
         ({"dim": 100, "num_heads": 8}, "dim=100, num_heads=8"),
         ({"action_smoothing": 1.0}, "action_smoothing=1.0"),
+        ({"squash_limit": 0.0}, "squash_limit=0.0"),
     ],
 )
 def test_config_rejects_bad_values(kwargs, match):

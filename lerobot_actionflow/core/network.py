@@ -54,6 +54,8 @@ class NetworkSpec:
     velocity_dim: int
     image_keys: tuple[str, ...] = ()
     point_cloud: bool = False
+    squash_limit: float = 1.0
+    """Translations reach the network as ``squash_limit * tanh(trans / squash_limit)`` (scaled EEF frame)."""
 
 
 class FlowTimeEmbedding(nn.Module):
@@ -72,9 +74,9 @@ class FlowTimeEmbedding(nn.Module):
         return self.mlp(torch.cat([angles.sin(), angles.cos()], dim=-1))
 
 
-def pose_features(rot: Tensor, trans: Tensor) -> Tensor:
+def pose_features(rot: Tensor, trans: Tensor, squash_limit: float = 1.0) -> Tensor:
     """Pose as a 9-vector for the non-IPA variants: squashed translation and the 6D rotation."""
-    return torch.cat([squash(trans), g.matrix_to_rot6d(rot)], dim=-1)
+    return torch.cat([squash(trans, squash_limit), g.matrix_to_rot6d(rot)], dim=-1)
 
 
 class ActionFlowNetwork(nn.Module):
@@ -163,10 +165,11 @@ class ActionFlowNetwork(nn.Module):
         rot, trans = torch.cat(rots, dim=2), torch.cat(transs, dim=2)
         s, rot, trans = s.flatten(1, 2), rot.flatten(1, 2), trans.flatten(1, 2)  # [B, M, ...]
         if self.architecture != "ipa":
-            s = s + self.pose_embed(pose_features(rot, trans))
+            s = s + self.pose_embed(pose_features(rot, trans, self.spec.squash_limit))
         if self.architecture == "single_token":
             s = self.obs_pool(s.flatten(1))[:, None]  # [B, 1, C]; its pose is unused
-        return SceneTokens(s, rot, trans, squash(trans), self.action_feature + self.action_index_embed)
+        squashed = squash(trans, self.spec.squash_limit)
+        return SceneTokens(s, rot, trans, squashed, self.action_feature + self.action_index_embed)
 
     def forward(
         self, scene: SceneTokens, act_rot: Tensor, act_trans: Tensor, act_input: Tensor, t: Tensor
@@ -177,10 +180,10 @@ class ActionFlowNetwork(nn.Module):
         if self.architecture == "ipa":
             s = torch.cat([scene.features, a], dim=1)
             rot = torch.cat([scene.rot, act_rot], dim=1)
-            trans = torch.cat([scene.squashed_trans, squash(act_trans)], dim=1)
+            trans = torch.cat([scene.squashed_trans, squash(act_trans, self.spec.squash_limit)], dim=1)
             out = self.mixer(s, rot, trans)
         else:
-            a = a + self.pose_embed(pose_features(act_rot, act_trans))
+            a = a + self.pose_embed(pose_features(act_rot, act_trans, self.spec.squash_limit))
             out = self.mixer(torch.cat([scene.features, a], dim=1))
         return self.head(out[:, -a.shape[1] :])
 
