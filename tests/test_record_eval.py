@@ -337,3 +337,26 @@ def test_every_recipe_in_datasets_is_valid():
         recipe = load_recipe(path)
         assert recipe.variant in names[recipe.task].variants, path
         assert path.stem == recipe.repo_id.split("/")[-1], path
+
+
+def test_ablation_batches_are_lerobot_dataset_windows(dataset):
+    """eval/ablate.py trains from tensors instead of LeRobotDataset; its samples must be exactly what
+    lerobot-train gets with ActionFlow's delta timestamps (history padded at the episode start, actions padded
+    and flagged past its end), or its ablations would not transfer to lerobot-train."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+    from ablate import Batches
+
+    keys = ("observation.token_poses", "observation.token_features")
+    deltas = {k: [-1 / 20, 0.0] for k in keys} | {"action": [i / 20 for i in range(16)]}
+    ds = LeRobotDataset(REPO_ID, root=dataset, delta_timestamps=deltas)
+    columns = ds.hf_dataset.with_format("numpy")
+    data = {k: np.stack(columns[k]) for k in (*keys, "action")}
+    data["episode"] = np.asarray(columns["episode_index"])
+    batches = Batches(data, n_obs=2, horizon=16)
+    frames = [0, 1, 5, ds.meta.episodes["length"][0] - 3, ds.meta.episodes["length"][0], len(ds) - 1]
+    ours = batches.at(torch.tensor(frames))
+    for row, frame in enumerate(frames):
+        item = ds[frame]
+        for key in (*keys, "action", "action_is_pad"):
+            assert torch.equal(ours[key][row], item[key]), f"{key} differs at frame {frame}"
+    assert ours["action_is_pad"][-1].sum() == 15  # the last frame: one real action, then padding
