@@ -46,9 +46,12 @@ def make_env(task: str, variant: str, env_kwargs: dict):
     return spec, gym.make(spec.env_id, **spec.kwargs(variant), **env_kwargs)
 
 
-def record(task: str, variant: str, episodes: int, noise: float, env_kwargs: dict, cache: Path) -> dict:
-    """Successful expert episodes from seeds 0, 1, ... (as ``actionflow-record``), as ``{policy key: array}``
-    frames plus ``episode``; cached as an .npz keyed by the source of the task and its expert."""
+def record(
+    task: str, variant: str, episodes: int, noise: float, env_kwargs: dict, cache: Path, first_seed: int = 0
+) -> dict:
+    """Successful expert episodes from seeds ``first_seed``, +1, ... (as ``actionflow-record``), as
+    ``{policy key: array}`` frames plus ``episode``; cached as an .npz keyed by the source of the task and its
+    expert."""
     import gym_actionflow
 
     spec, env = make_env(task, variant, env_kwargs)
@@ -56,12 +59,13 @@ def record(task: str, variant: str, episodes: int, noise: float, env_kwargs: dic
     sources = [inspect.getsource(importlib.import_module(m)) for m in modules]
     digest = hashlib.sha1("".join(sources).encode()).hexdigest()[:8]
     tag = "".join(f"_{k}-{v}" for k, v in sorted(env_kwargs.items()))
-    path = cache / f"{spec.name}_{variant}_{episodes}_n{noise:g}{tag}_{digest}.npz"
+    start = f"_from{first_seed}" if first_seed else ""
+    path = cache / f"{spec.name}_{variant}_{episodes}_n{noise:g}{tag}{start}_{digest}.npz"
     if path.exists():
         env.close()
         return dict(np.load(path))
     frames: dict[str, list] = collections.defaultdict(list)
-    seed, kept = 0, 0
+    seed, kept = first_seed, 0
     bar = tqdm(total=episodes, desc=f"recording {spec.name} {variant}")
     while kept < episodes:
         steps: list[tuple[dict, np.ndarray]] = []
@@ -230,7 +234,8 @@ def table(results: Path) -> str:
             settings += f" (evaluating {Path(r['checkpoint']).name})"
         if r.get("note"):
             settings += f"; {r['note']}"
-        cells = [r["name"], str(r["episodes"]), str(r["steps"]), settings, f"{r['train_s']:.0f}"]
+        trained = [str(r["episodes"]), str(r["steps"])] if not r.get("checkpoint") else ["", ""]
+        cells = [r["name"], *trained, settings, f"{r['train_s']:.0f}" if not r.get("checkpoint") else ""]
         for v in variants:
             e = r["eval"].get(v)
             cells.append(f"{e['success']:.0%} of {e['n']}" if e else "")

@@ -1,0 +1,80 @@
+"""Open-loop error of a trained ActionFlow policy on held-out expert demonstrations.
+
+    python eval/open_loop.py outputs/ablate/ckpt/<cell> --task MugHanging --variant train
+
+For every frame of ``--episodes`` expert episodes recorded from seeds ``--seed``, ``--seed + 1``, ... (never
+the training seeds 0, 1, ...), the policy samples a chunk from the demonstration's own observation history
+and it is compared with the demonstration's next actions: the median position error of chunk steps 0, 3 and
+7, the spread of the samples over ``--samples`` noise draws, and how often the gripper command has the wrong
+sign.
+Rows: all frames, the 12 frames before the expert first closes the gripper (the grasp) and the 12 before it
+opens it again (a release). This separates a policy that cannot fit its data (large errors here) from one that
+drifts in closed loop (small errors here, failures in ``eval/ablate.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+from ablate import Batches, record  # noqa: E402
+
+from lerobot_actionflow import ActionFlowPolicy  # noqa: E402
+
+
+def phases(data: dict) -> dict[str, np.ndarray]:
+    """Frame masks: all, the 12 frames before each episode's first close, the 12 before the next open."""
+    grip, episode = data["action"][:, 9], data["episode"]
+    grasp, release = np.zeros(len(grip), bool), np.zeros(len(grip), bool)
+    for e in np.unique(episode):
+        idx = np.where(episode == e)[0]
+        g = grip[idx]
+        close = int(np.argmax(g > 0))
+        opened = close + int(np.argmax(g[close:] < 0)) if np.any(g[close:] < 0) else len(g)
+        grasp[idx[max(close - 12, 0) : close]] = True
+        release[idx[max(opened - 12, 0) : opened]] = True
+    return {"all frames": np.ones(len(grip), bool), "12 before grasp": grasp, "12 before release": release}
+
+
+@torch.no_grad()
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--task", default="MugHanging")
+    p.add_argument("--variant", default="train")
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--seed", type=int, default=5000, help="first demonstration seed (held out from training)")
+    p.add_argument("--samples", type=int, default=4)
+    p.add_argument("--cache", type=Path, default=Path("outputs/ablate/data"))
+    args = p.parse_args(argv)
+
+    torch.set_num_threads(1)
+    policy = ActionFlowPolicy.from_pretrained(args.checkpoint).eval()
+    data = record(args.task, args.variant, args.episodes, 1.0, {}, args.cache, first_seed=args.seed)
+    batches = Batches(data, policy.config.n_obs_steps, policy.config.horizon)
+    batch = batches.at(torch.arange(batches.size))
+    demo = batch.pop("action")
+    chunks = []
+    for s in range(args.samples):
+        torch.manual_seed(s)
+        chunks.append(policy.predict_action_chunk(batch))
+    chunks = torch.stack(chunks)  # [S, n, H, 10]
+    err = (chunks[0, ..., :3] - demo[..., :3]).norm(dim=-1).numpy() * 1000  # mm
+    spread = (chunks[..., :3] - chunks[..., :3].mean(0)).norm(dim=-1).mean(0).numpy() * 1000
+    wrong = (chunks[0, ..., 9].sign() != demo[..., 9].sign()).numpy()
+    print(f"{args.checkpoint}: {args.episodes} {args.task} {args.variant} demonstrations, seeds {args.seed}+")
+    print("| frames | n | error step 0 / 3 / 7 (mm) | sample spread step 0 / 7 (mm) | gripper wrong 0-7 |")
+    print("|---|---|---|---|---|")
+    for name, mask in phases(data).items():
+        e, sp = np.median(err[mask], axis=0), np.median(spread[mask], axis=0)
+        print(f"| {name} | {mask.sum()} | {e[0]:.1f} / {e[3]:.1f} / {e[7]:.1f} | {sp[0]:.1f} / {sp[7]:.1f} "
+              f"| {wrong[mask, :8].mean():.1%} |")
+
+
+if __name__ == "__main__":
+    main()
