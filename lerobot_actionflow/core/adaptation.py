@@ -53,6 +53,4 @@ def squash(trans: Tensor, limit: float = 1.0) -> Tensor:
     ``limit * tanh(trans / limit)``, close to the identity up to about ``limit / 2``. ``limit = 1`` is the
     paper's plain ``tanh``, which at the default scale x10 leaves 1 cm of motion 0.4 % of the input's range at
     0.2 m and ties everything beyond ~0.25 m together."""
-    if limit == 1.0:
-        return torch.tanh(trans)
     return limit * torch.tanh(trans / limit)

@@ -74,7 +74,7 @@ class FlowTimeEmbedding(nn.Module):
         return self.mlp(torch.cat([angles.sin(), angles.cos()], dim=-1))
 
 
-def pose_features(rot: Tensor, trans: Tensor, squash_limit: float = 1.0) -> Tensor:
+def pose_features(rot: Tensor, trans: Tensor, squash_limit: float) -> Tensor:
     """Pose as a 9-vector for the non-IPA variants: squashed translation and the 6D rotation."""
     return torch.cat([squash(trans, squash_limit), g.matrix_to_rot6d(rot)], dim=-1)
 
