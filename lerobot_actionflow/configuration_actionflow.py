@@ -64,6 +64,9 @@ class ActionFlowConfig(PreTrainedConfig):
     num_inference_steps: int = 4
     time_schedule: str = "uniform"  # "uniform" or "exponential" (shorter steps near the data)
     time_schedule_rate: float = 2.0
+    # Rotation noise of the SE(3) flow: None = uniform on SO(3) (the paper's); a number = Exp(std * N(0, I))
+    # around the gripper's current orientation (radians).
+    rotation_noise_std: float | None = None
 
     # Loss weights of the velocity terms.
     translation_loss_weight: float = 1.0
@@ -122,6 +125,11 @@ class ActionFlowConfig(PreTrainedConfig):
             )
         if self.squash_limit <= 0:
             raise ValueError(f"squash_limit={self.squash_limit}; expected > 0 (1 is the paper's tanh)")
+        if self.rotation_noise_std is not None and not self.rotation_noise_std > 0:
+            raise ValueError(
+                f"rotation_noise_std={self.rotation_noise_std}; expected None (uniform on SO(3), the "
+                "paper's) or a standard deviation > 0 in radians"
+            )
         if self.translation_scale <= 0:
             raise ValueError(f"translation_scale={self.translation_scale}; expected > 0")
         if self.control_fps <= 0:

@@ -1,5 +1,6 @@
 """The rectified flows against exact solutions: Euler with the true conditional field is exact."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -132,6 +133,22 @@ def test_noise_distributions():
     )
     assert abs(x.trans.mean().item()) < 0.03 and abs(x.trans.std().item() - 1) < 0.03
     assert x.rot.mean((0, 1)).abs().max() < 0.03  # uniform on SO(3): zero mean matrix
+
+
+@pytest.mark.parametrize("std", [0.2, 0.5])
+def test_concentrated_rotation_noise(std):
+    """rotation_noise_std: rotations Exp(std * N(0, I)), checked against scipy's rotation vectors: the angle
+    follows a chi distribution with 3 degrees of freedom (mean 2 sqrt(2 / pi) std), the axis is isotropic."""
+    from scipy.spatial.transform import Rotation
+
+    flow = SE3Flow(1, rotation_noise_std=std)
+    x = flow.noise(5000, 4, generator=torch.Generator().manual_seed(1), dtype=f64)
+    rotvec = Rotation.from_matrix(x.rot.reshape(-1, 3, 3).numpy()).as_rotvec()  # [N, 3]
+    assert abs(np.linalg.norm(rotvec, axis=1).mean() / (2 * np.sqrt(2 / np.pi) * std) - 1) < 0.02
+    assert np.abs(rotvec.std(0) / std - 1).max() < 0.03 and np.abs(rotvec.mean(0)).max() < 0.02 * std
+    assert abs(x.trans.std().item() - 1) < 0.03  # translations untouched
+    with pytest.raises(ValueError, match="rotation_noise_std=0"):
+        SE3Flow(1, rotation_noise_std=0)
 
 
 @pytest.mark.parametrize("flow", [SE3Flow(2), EuclideanFlow(2)], ids=["se3", "euclidean"])

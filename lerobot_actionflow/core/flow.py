@@ -75,10 +75,18 @@ def time_grid(
 class SE3Flow:
     """Rectified flow on SE(3) x R^m per action step (paper Eq. 2-5).
 
-    Noise: rotations uniform on SO(3), translations and extras standard normal.
+    Noise: translations and extras standard normal; rotations uniform on SO(3) (the paper's,
+    ``rotation_noise_std=None``) or ``Exp(std * N(0, I))``, concentrated around the identity, which in
+    the policy's EEF frame is the gripper's current orientation (as the translation noise is centred on
+    the gripper). Uniform noise starts rotation paths anywhere, up to pi away and across the cut locus of
+    ``Log``, so the marginal field the network must learn averages paths that cross; concentrated noise
+    keeps rotation paths short and nearly straight.
     """
 
-    def __init__(self, extra_dim: int):
+    def __init__(self, extra_dim: int, rotation_noise_std: float | None = None):
+        if rotation_noise_std is not None and not rotation_noise_std > 0:
+            raise ValueError(f"rotation_noise_std={rotation_noise_std}; expected None (uniform) or > 0 (rad)")
+        self.rotation_noise_std = rotation_noise_std
         self.extra_dim = extra_dim
         self.velocity_dim = 6 + extra_dim
         self.velocity_parts = {"translation": slice(0, 3), "rotation": slice(3, 6), "extra": slice(6, None)}
@@ -94,7 +102,11 @@ class SE3Flow:
         device=None,
         dtype: torch.dtype = torch.float32,
     ) -> SE3State:
-        rot = g.random_rotation((batch, horizon), generator=generator, device=device, dtype=dtype)
+        if self.rotation_noise_std is None:
+            rot = g.random_rotation((batch, horizon), generator=generator, device=device, dtype=dtype)
+        else:
+            axis_angle = torch.randn(batch, horizon, 3, generator=generator, device=device, dtype=dtype)
+            rot = g.so3_exp(self.rotation_noise_std * axis_angle)
         trans = torch.randn(batch, horizon, 3, generator=generator, device=device, dtype=dtype)
         extra = torch.randn(batch, horizon, self.extra_dim, generator=generator, device=device, dtype=dtype)
         return SE3State(rot, trans, extra)
@@ -196,12 +208,15 @@ Flow = SE3Flow | EuclideanFlow
 VelocityFn = Callable[[object, Tensor], Tensor]
 
 
-def make_flow(action_space: str, extra_dim: int) -> Flow:
-    """The flow of an ``action_space``: ``"se3"`` (the paper's) or ``"euclidean"`` (flat vector ablation)."""
-    flows = {"se3": SE3Flow, "euclidean": EuclideanFlow}
-    if action_space not in flows:
-        raise ValueError(f"action_space={action_space!r}; expected one of {tuple(flows)}")
-    return flows[action_space](extra_dim)
+def make_flow(action_space: str, extra_dim: int, rotation_noise_std: float | None = None) -> Flow:
+    """The flow of an ``action_space``: ``"se3"`` (the paper's) or ``"euclidean"`` (flat vector ablation).
+    ``rotation_noise_std`` shapes the SE(3) flow's rotation noise (see :class:`SE3Flow`); the Euclidean flow's
+    noise is standard normal in every dimension."""
+    if action_space == "se3":
+        return SE3Flow(extra_dim, rotation_noise_std)
+    if action_space == "euclidean":
+        return EuclideanFlow(extra_dim)
+    raise ValueError(f"action_space={action_space!r}; expected one of ('se3', 'euclidean')")
 
 
 def integrate(flow: Flow, velocity_fn: VelocityFn, x0, grid: Tensor, start: int = 0):
