@@ -4,11 +4,13 @@
 
 For every frame of ``--episodes`` expert episodes recorded from seeds ``--seed``, ``--seed + 1``, ... (never
 the training seeds 0, 1, ...), the policy samples a chunk from the demonstration's own observation history
-and it is compared with the demonstration's next actions: the median position error of chunk steps 0, 3 and
-7, the spread of the samples over ``--samples`` noise draws, and how often the gripper command has the wrong
-sign.
-Rows: all frames, the 12 frames before the expert first closes the gripper (the grasp) and the 12 before it
-opens it again (a release). This separates a policy that cannot fit its data (large errors here) from one that
+and it is compared with the demonstration's next actions: the median position
+error of chunk steps 0, 3 and 7, the median rotation error of steps 7 and 15 (and how often step 15 is off by
+over 20 degrees), the spread of the samples over ``--samples`` noise draws, and how often the gripper command
+has the wrong sign.
+Rows: all frames, the 12 frames before the expert first closes the gripper (the grasp), the carry (from the
+grasp to 12 frames before the release, where MugHanging turns the mug) and the 12 before it opens it again
+(a release). This separates a policy that cannot fit its data (large errors here) from one that
 drifts in closed loop (small errors here, failures in ``eval/ablate.py``).
 """
 
@@ -28,17 +30,29 @@ from lerobot_actionflow import ActionFlowPolicy  # noqa: E402
 
 
 def phases(data: dict) -> dict[str, np.ndarray]:
-    """Frame masks: all, the 12 frames before each episode's first close, the 12 before the next open."""
+    """Frame masks: all, the 12 frames before each episode's first close, the carry, the 12 before the next
+    open."""
     grip, episode = data["action"][:, 9], data["episode"]
-    grasp, release = np.zeros(len(grip), bool), np.zeros(len(grip), bool)
+    grasp, carry, release = (np.zeros(len(grip), bool) for _ in range(3))
     for e in np.unique(episode):
         idx = np.where(episode == e)[0]
         g = grip[idx]
         close = int(np.argmax(g > 0))
         opened = close + int(np.argmax(g[close:] < 0)) if np.any(g[close:] < 0) else len(g)
         grasp[idx[max(close - 12, 0) : close]] = True
+        carry[idx[close : max(opened - 12, close)]] = True
         release[idx[max(opened - 12, 0) : opened]] = True
-    return {"all frames": np.ones(len(grip), bool), "12 before grasp": grasp, "12 before release": release}
+    return {"all frames": np.ones(len(grip), bool), "12 before grasp": grasp, "carry": carry,
+            "12 before release": release}
+
+
+def rotation_error_deg(a: torch.Tensor, b: torch.Tensor) -> np.ndarray:
+    """Geodesic angle (degrees) between the rotations of pose-9 actions ``[..., 10]``."""
+    from lerobot_actionflow.core import geometry as g
+
+    ra, rb = g.rot6d_to_matrix(a[..., 3:9]), g.rot6d_to_matrix(b[..., 3:9])
+    cos = (((ra.transpose(-1, -2) @ rb).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
+    return torch.rad2deg(torch.arccos(cos)).numpy()
 
 
 @torch.no_grad()
@@ -51,11 +65,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=5000, help="first demonstration seed (held out from training)")
     p.add_argument("--samples", type=int, default=4)
     p.add_argument("--cache", type=Path, default=Path("outputs/ablate/data"))
+    p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                   help="gym.make keyword of the demonstrations' env, e.g. mug_yaw=slight")
     args = p.parse_args(argv)
 
     torch.set_num_threads(1)
     policy = ActionFlowPolicy.from_pretrained(args.checkpoint).eval()
-    data = record(args.task, args.variant, args.episodes, 1.0, {}, args.cache, first_seed=args.seed)
+    env_kwargs = dict(kv.split("=", 1) for kv in args.env_kwarg)
+    data = record(args.task, args.variant, args.episodes, 1.0, env_kwargs, args.cache, first_seed=args.seed)
     batches = Batches(data, policy.config.n_obs_steps, policy.config.horizon)
     batch = batches.at(torch.arange(batches.size))
     demo = batch.pop("action")
@@ -67,13 +84,16 @@ def main(argv: list[str] | None = None) -> None:
     err = (chunks[0, ..., :3] - demo[..., :3]).norm(dim=-1).numpy() * 1000  # mm
     spread = (chunks[..., :3] - chunks[..., :3].mean(0)).norm(dim=-1).mean(0).numpy() * 1000
     wrong = (chunks[0, ..., 9].sign() != demo[..., 9].sign()).numpy()
+    rot_err = rotation_error_deg(chunks[0], demo)  # [n, H]
     print(f"{args.checkpoint}: {args.episodes} {args.task} {args.variant} demonstrations, seeds {args.seed}+")
-    print("| frames | n | error step 0 / 3 / 7 (mm) | sample spread step 0 / 7 (mm) | gripper wrong 0-7 |")
-    print("|---|---|---|---|---|")
+    print("| frames | n | error step 0 / 3 / 7 (mm) | rotation error step 7 / 15 (deg) "
+          "| rotation step 15 > 20 deg | sample spread step 0 / 7 (mm) | gripper wrong 0-7 |")
+    print("|---|---|---|---|---|---|---|")
     for name, mask in phases(data).items():
-        e, sp = np.median(err[mask], axis=0), np.median(spread[mask], axis=0)
-        print(f"| {name} | {mask.sum()} | {e[0]:.1f} / {e[3]:.1f} / {e[7]:.1f} | {sp[0]:.1f} / {sp[7]:.1f} "
-              f"| {wrong[mask, :8].mean():.1%} |")
+        e, sp, r = (np.median(x[mask], axis=0) for x in (err, spread, rot_err))
+        far = (rot_err[mask, 15] > 20).mean()
+        print(f"| {name} | {mask.sum()} | {e[0]:.1f} / {e[3]:.1f} / {e[7]:.1f} | {r[7]:.1f} / {r[15]:.1f} "
+              f"| {far:.1%} | {sp[0]:.1f} / {sp[7]:.1f} | {wrong[mask, :8].mean():.1%} |")
 
 
 if __name__ == "__main__":
