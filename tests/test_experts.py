@@ -19,7 +19,8 @@ CASES: dict[str, list[tuple[str, int, float]]] = {
     "Threading": [(variant, seed, 0.0) for variant in ("D0", "D1") for seed in (0, 1, 2)],
     "Lightbulb": [("D0", seed, noise) for noise in (0.0, 1.0) for seed in (0, 1, 2)],
     # Test seeds 0 and 1 put the hanger on the right and on the left side of the table.
-    "MugHanging": [("train", 0, 0.0), ("train", 1, 1.0), ("test", 0, 0.0), ("test", 1, 1.0)],
+    "MugHanging": [("train", 0, 0.0), ("train", 1, 1.0), ("test", 0, 0.0), ("test", 1, 1.0),
+                   ("scene_moved", 2, 1.0)],
 }
 MAX_STEPS = {"Threading": 300}
 """Episode length the expert must stay within, where tighter than the task's ``max_episode_steps``."""

@@ -168,6 +168,56 @@ def test_layouts_fix_or_move_the_hanger_and_keep_the_mug_out_of_the_box():
     assert np.ptp(train[:, 3]) > 0.05 and np.ptp(train[:, 4]) > 0.03, "the mug pose should vary"
 
 
+def mug_in_hanger_frame(obs: dict) -> np.ndarray:
+    """(x, y, yaw) of the mug in the hanger's frame (pole foot, x along the peg's heading)."""
+    h, mug = obs["token_poses"][2].astype(np.float64), obs["token_poses"][1].astype(np.float64)
+    h_yaw, mug_yaw = np.arctan2(h[4], h[3]), np.arctan2(mug[4], mug[3])
+    c, s = np.cos(h_yaw), np.sin(h_yaw)
+    rel = np.array([[c, s], [-s, c]]) @ (mug[:2] - h[:2])
+    return np.array([rel[0], rel[1], (mug_yaw - h_yaw + np.pi) % (2 * np.pi) - np.pi])
+
+
+@pytest.mark.parametrize("mug_yaw", ["any", "slight"])
+def test_scene_moved_is_the_training_layout_moved_and_turned(mug_yaw):
+    """``scene_moved`` puts the hanger where ``test`` does and the mug where ``train`` puts it relative to the
+    hanger: the same relative layout up to one rigid motion (what an equivariant policy is exact under),
+    unlike ``test``, which moves the hanger alone."""
+    rel = {}
+    for variant in ("train", "scene_moved", "test"):
+        env = gym.make(ENV_ID, variant=variant, mug_yaw=mug_yaw)
+        obs = [env.reset(seed=seed)[0] for seed in range(40)]
+        rel[variant] = np.array([mug_in_hanger_frame(o) for o in obs])
+        if variant == "scene_moved":
+            hanger = np.array([o["token_poses"][2, :2] for o in obs])
+            assert np.all((hanger[:, 0] >= 0.02) & (hanger[:, 0] <= 0.12))
+            assert np.all((np.abs(hanger[:, 1]) >= 0.18) & (np.abs(hanger[:, 1]) <= 0.26))
+        env.close()
+    dims = 3 if mug_yaw == "slight" else 2  # (any yaw covers the circle: nothing to compare)
+    low, high = rel["train"].min(0)[:dims], rel["train"].max(0)[:dims]
+    margin = np.array([0.01, 0.01, 0.1])[:dims]
+    moved = rel["scene_moved"][:, :dims]
+    inside = np.all((moved >= low - margin) & (moved <= high + margin), axis=1)
+    assert inside.all(), rel["scene_moved"][~inside]
+    assert np.ptp(rel["scene_moved"][:, 0]) > 0.05 and np.ptp(rel["scene_moved"][:, 1]) > 0.03
+    # test moves the hanger alone: the mug ends up far to the side of the peg's line, outside training.
+    side = np.abs(rel["test"][:, 1])
+    assert np.mean(side > 2 * high[1]) > 0.9 and np.median(side) > 0.15, np.sort(side)
+
+
+def test_mug_yaw_slight_is_the_papers_narrow_range():
+    """``mug_yaw="slight"``: the handle within 30 degrees of -135 degrees; ``any`` covers the circle."""
+    yaws = {}
+    for mug_yaw in ("slight", "any"):
+        env = gym.make(ENV_ID, variant="train", mug_yaw=mug_yaw)
+        yaws[mug_yaw] = np.array(
+            [np.arctan2(*env.reset(seed=seed)[0]["token_poses"][1, [4, 3]]) for seed in range(40)]
+        )
+        env.close()
+    off = (yaws["slight"] + 3 * np.pi / 4 + np.pi) % (2 * np.pi) - np.pi
+    assert np.all(np.abs(off) <= np.pi / 6 + 1e-5) and np.ptp(off) > 0.6
+    assert np.ptp(yaws["any"]) > 5.0
+
+
 # ---------------------------------------------------------------- point cloud
 def surface_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms, points: np.ndarray) -> np.ndarray:
     """Distance (M,) from each point to the nearest surface of the given box / cylinder / capsule geoms,
@@ -266,8 +316,9 @@ def test_check_env_with_point_cloud_and_pixels():
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"layout": "D7"}, r"layout='D7'; expected one of \('train', 'test'\)"),
-        ({"variant": "D7"}, r"variant='D7'; expected one of \('train', 'test'\)"),
+        ({"layout": "D7"}, r"layout='D7'; expected one of \('train', 'test', 'scene_moved'\)"),
+        ({"variant": "D7"}, r"variant='D7'; expected one of \('train', 'test', 'scene_moved'\)"),
+        ({"mug_yaw": "tiny"}, r"mug_yaw='tiny'; expected one of \('any', 'slight'\)"),
         ({"hanger_obs": "x"}, r"hanger_obs='x'; expected 'pose' .* or 'point_cloud'"),
         ({"n_points": 0}, "n_points=0; expected a positive integer"),
     ],

@@ -107,6 +107,6 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.tasks.mug_hanging:MugHangingEnv",
         "gym_actionflow.experts.mug_hanging:MugHangingExpert",
         400,
-        ("train", "test"),
+        ("train", "test", "scene_moved"),
     ),
 )

@@ -68,20 +68,30 @@ PEG_ROOT = np.array([0.0, 0.0, PEG_ROOT_Z])
 PEG_TIP = PEG_ROOT + PEG_LENGTH * PEG_DIRECTION
 
 # ---------------------------------------------------------------- layouts
+_TEST_REGIONS = (
+    Region((0.02, 0.12), (0.18, 0.26), (np.pi - np.pi / 8, np.pi + np.pi / 8)),
+    Region((0.02, 0.12), (-0.26, -0.18), (np.pi - np.pi / 8, np.pi + np.pi / 8)),
+)
 HANGER_REGIONS = {
     "train": (Region((0.14, 0.14), (0.0, 0.0), (np.pi, np.pi)),),
-    "test": (
-        Region((0.02, 0.12), (0.18, 0.26), (np.pi - np.pi / 8, np.pi + np.pi / 8)),
-        Region((0.02, 0.12), (-0.26, -0.18), (np.pi - np.pi / 8, np.pi + np.pi / 8)),
-    ),
+    "test": _TEST_REGIONS,
+    "scene_moved": _TEST_REGIONS,
 }
 """Where the hanger's pole stands and where its peg points (yaw of the hanger's x axis). ``train``: one fixed
 pose, in front of the robot at (0.14, 0) with the peg pointing back at the robot (yaw pi). ``test``: moved to
 the left (y in [0.18, 0.26]) or the right (y in [-0.26, -0.18]) side of the table, half the episodes each,
-x in [0.02, 0.12], the peg's yaw within 22.5 degrees of pointing back at the robot."""
+x in [0.02, 0.12], the peg's yaw within 22.5 degrees of pointing back at the robot. ``scene_moved``: the
+hanger placed as in ``test``, and the mug moved and turned with it (see ``MugHangingEnv``)."""
+TRAIN_HANGER = (np.array([0.14, 0.0]), np.pi)
+"""The ``train`` hanger's pole foot (x, y) and peg heading."""
 MUG_REGION = Region((-0.20, -0.08), (-0.045, 0.045), (-np.pi, np.pi))
-"""The mug stands upright at x in [-0.2, -0.08], y in [-0.045, 0.045], any yaw, in both layouts: between the
-robot and the hanger, clear of every hanger placement box (below)."""
+"""The mug stands upright at x in [-0.2, -0.08], y in [-0.045, 0.045], in both layouts: between the robot and
+the hanger, clear of every hanger placement box (below). Its yaw is drawn from ``MUG_YAWS``."""
+MUG_YAWS = {"any": (-np.pi, np.pi), "slight": (-3 * np.pi / 4 - np.pi / 6, -3 * np.pi / 4 + np.pi / 6)}
+"""The mug's yaw (its handle's heading) by the ``mug_yaw`` keyword: ``any`` (uniform), or ``slight``, the
+paper's protocol ("the demonstrations only include slight variations of the mug poses"): the handle
+within 30 degrees of pointing at the robot's front right (yaw -135 degrees), so that hanging it on the
+``train`` peg takes a turn of the hand between 15 and 75 degrees."""
 
 # ---------------------------------------------------------------- point cloud
 BOX_MARGIN = 0.01
@@ -221,9 +231,15 @@ class MugHangingEnv(ManipulationEnv):
 
     ## Starting state
     The arm at its home pose, gripper open. The mug stands upright at x in [-0.2, -0.08], y in
-    [-0.045, 0.045] with any yaw (both variants). `variant="train"`: the hanger's pole at (0.14, 0), the peg
-    pointing back at the robot (yaw pi). `variant="test"`: the pole at x in [0.02, 0.12] and y in
-    [0.18, 0.26] (left) or [-0.26, -0.18] (right), equally likely, with yaw in [pi - pi/8, pi + pi/8].
+    [-0.045, 0.045]; its yaw by `mug_yaw`: `"any"` (default, uniform) or `"slight"` (the paper's protocol,
+    "slight variations of the mug poses": the handle within 30 degrees of yaw -135 degrees, so that the hand
+    turns 15-75 degrees to hang it on the `train` peg). `variant="train"`: the hanger's pole at (0.14, 0), the
+    peg pointing back at the robot (yaw pi). `variant="test"`: the pole at x in [0.02, 0.12] and y in
+    [0.18, 0.26] (left) or [-0.26, -0.18] (right), equally likely, with yaw in [pi - pi/8, pi + pi/8]; the mug
+    stays where it was, so it now stands 9-30 cm to the side of the peg's line, a relative layout no
+    `train` episode has. `variant="scene_moved"`: the hanger placed as in `test` and the mug moved and turned
+    with it, so the relative layout is `train`'s up to one rigid motion (the generalisation an SE(3)-
+    equivariant policy guarantees, apart from where the arm starts).
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (400).
@@ -234,17 +250,17 @@ class MugHangingEnv(ManipulationEnv):
     """
 
     entity_names = ("mug", "hanger")
-    variants = ("train", "test")
+    variants = ("train", "test", "scene_moved")
     task_description = "Pick up the mug and hang it by its handle on the hanger's peg."
     default_image_size = 80
 
     def __init__(self, variant: str | None = None, hanger_obs: str = "pose", n_points: int = 512,
-                 layout: str | None = None, **kwargs) -> None:
+                 layout: str | None = None, mug_yaw: str = "any", **kwargs) -> None:
         if layout is not None:
             warnings.warn("MugHangingEnv(layout=...) is deprecated: use variant=... (the same values, "
                           "'train' or 'test'), the keyword of every gym_actionflow task", DeprecationWarning,
                           stacklevel=2)
-            check_choice("layout", layout, self.variants, " (hanger fixed / moved aside)")
+            check_choice("layout", layout, self.variants, " (where the hanger stands)")
             if variant is not None and variant != layout:
                 raise ValueError(f"variant={variant!r} and layout={layout!r} disagree; give variant only")
             variant = layout
@@ -255,6 +271,8 @@ class MugHangingEnv(ManipulationEnv):
             raise ValueError(
                 f"n_points={n_points!r}; expected a positive integer (points in the hanger cloud)"
             )
+        check_choice("mug_yaw", mug_yaw, tuple(MUG_YAWS), " (the mug's yaw range)")
+        self.mug_yaw = mug_yaw
         self.hanger_obs = hanger_obs
         self.n_points = int(n_points)
         self._cloud = np.zeros((self.n_points, 3), dtype=np.float32)
@@ -298,7 +316,13 @@ class MugHangingEnv(ManipulationEnv):
         region = regions[int(rng.integers(len(regions)))]
         xy, yaw = region.sample(rng)
         self.place_hanger(xy, yaw)
-        mug_xy, mug_yaw = MUG_REGION.sample(rng)
+        region = Region(MUG_REGION.x, MUG_REGION.y, MUG_YAWS[self.mug_yaw])
+        mug_xy, mug_yaw = region.sample(rng)
+        if self.variant == "scene_moved":  # the mug where training puts it relative to the hanger
+            turn = yaw - TRAIN_HANGER[1]
+            c, s = np.cos(turn), np.sin(turn)
+            mug_xy = xy + np.array([[c, -s], [s, c]]) @ (mug_xy - TRAIN_HANGER[0])
+            mug_yaw = mug_yaw + turn
         self.set_free_pose("mug_joint", np.array([mug_xy[0], mug_xy[1], TABLE_TOP]), yaw_quat(mug_yaw))
         if self.hanger_obs == "point_cloud":
             mujoco.mj_forward(self.model, self.data)
