@@ -116,11 +116,12 @@ def test_wrist_camera_is_recorded_as_video(tmp_path):
     )
 
 
-def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path):
+@pytest.mark.parametrize(("workers", "episodes"), [(1, 4), (2, 10)])  # workers simulate ahead: a longer run
+def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path, workers, episodes):
     root = tmp_path / "rec"
     cmd = [
-        _cli("actionflow-record"), "--task", "Stack", "--episodes", "4", "--repo-id", "local/int",
-        "--root", str(root), "--quiet",
+        _cli("actionflow-record"), "--task", "Stack", "--episodes", str(episodes), "--repo-id", "local/int",
+        "--root", str(root), "--quiet", "--workers", str(workers),
     ]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -137,7 +138,7 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path):
     assert proc.returncode == 130, output
     assert "run the same command again to resume" in output
     kept = json.loads(log_path.read_text())["kept_seeds"]
-    assert 1 <= len(kept) < 4
+    assert 1 <= len(kept) < episodes
     partial = LeRobotDataset("local/int", root=root)
     assert partial.num_episodes == len(kept)
     assert len(partial) == sum(partial.meta.episodes["length"])
@@ -145,8 +146,8 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path):
     done = subprocess.run(cmd, env=_env(tmp_path), capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     full = LeRobotDataset("local/int", root=root)
-    assert full.num_episodes == 4
-    assert json.loads(log_path.read_text())["kept_seeds"] == [0, 1, 2, 3]  # resumed, no seed twice
+    assert full.num_episodes == episodes
+    assert json.loads(log_path.read_text())["kept_seeds"] == list(range(episodes))  # resumed, no seed twice
     # The finished episodes are unchanged by the resume.
     np.testing.assert_array_equal(full[0]["action"].numpy(), partial[0]["action"].numpy())
 
@@ -163,7 +164,7 @@ def save_then_die(self, *args, **kwargs):
     calls.append(1)
     save(self, *args, **kwargs)
     if len(calls) == 2:
-        os._exit(9)  # killed with the episode's files written but not finalised: no parquet footers
+        os._exit(9)  # killed with the episodes' files written but not finalised: no parquet footers
 
 LeRobotDataset.save_episode = save_then_die
 record(Recipe(task="Stack", variant="D0", episodes=3, repo_id="local/kill"), root=sys.argv[1], progress=False)
@@ -172,22 +173,26 @@ record(Recipe(task="Stack", variant="D0", episodes=3, repo_id="local/kill"), roo
 
 def test_a_kill_while_an_episode_is_written_is_undone_on_resume(tmp_path):
     """A hard kill (no Python cleanup) in the middle of writing episode 2 leaves a parquet file without its
-    footer, which LeRobot cannot load; the rerun removes it, restores LeRobot's metadata, records that seed
-    again and ends with a valid dataset, equal to one recorded without the kill."""
+    footer, which LeRobot cannot load; the rerun removes it, restores LeRobot's metadata, writes the journaled
+    episodes again (without simulating them) and ends with a valid dataset, equal to one recorded without the
+    kill."""
     root = tmp_path / "kill"
     res = subprocess.run(
         [sys.executable, "-c", KILL_DURING_SECOND_EPISODE, str(root)],
         env=_env(tmp_path), capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert res.returncode == 9, res.stderr[-2000:]
-    half_written = root / "data" / "chunk-000" / "file-001.parquet"
+    half_written = root / "data" / "chunk-000" / "file-000.parquet"  # episodes 1 and 2, not finalized
     assert half_written.is_file() and half_written.read_bytes()[-4:] != b"PAR1"  # no parquet footer
     log = json.loads((root / "meta" / LOG_NAME).read_text())
-    assert log["kept_seeds"] == [0] and log["pending_seed"] == 1
+    assert log["kept_seeds"] == [0, 1]  # both durable in the journal
+    assert sorted(p.name for p in (root / "meta" / "actionflow_journal").iterdir()) == ["0.npz", "1.npz"]
     recipe = Recipe(task="Stack", variant="D0", episodes=3, repo_id="local/kill")
     result = record(recipe, root=root, progress=False)
     assert result.episodes == 3 and result.log.kept_seeds == [0, 1, 2]
+    assert result.replayed == 2 and result.kept_now == 1
     assert not (root / "meta" / "actionflow_pending").exists()
+    assert not (root / "meta" / "actionflow_journal").exists()
     ds = LeRobotDataset("local/kill", root=root)
     assert ds.num_episodes == 3 and len(ds) == sum(ds.meta.episodes["length"])
     assert [int(e) for e in ds.meta.episodes["episode_index"]] == [0, 1, 2]

@@ -1,8 +1,10 @@
 """``actionflow-record``: scripted-expert demonstrations of a gym_actionflow task into a LeRobotDataset.
 
-One module per concern: :mod:`.recipe` (what to record), :mod:`.recorder` (the recording loop), :mod:`.log`
-(which seeds were kept, for resuming), :mod:`.durability` (no half-written episode survives a kill),
-:mod:`.hub` (push with a dataset card) and :mod:`.cli` (the command line).
+One module per concern: :mod:`.recipe` (what to record), :mod:`.recorder` (the recording loop),
+:mod:`.simulate` (expert episodes in seed order, here or in worker processes), :mod:`.log` (which seeds were
+kept, for resuming), :mod:`.journal` (kept episodes not yet finalized in the dataset), :mod:`.durability`
+(checkpoints, and the roll-back after a kill), :mod:`.hub` (push with a dataset card) and :mod:`.cli` (the
+command line).
 """
 
 from lerobot_actionflow.tools.record.cli import main

@@ -1,10 +1,21 @@
-"""Every finished episode survives Ctrl-C, a crash or a kill; an episode a kill interrupts while LeRobot
-writes it is undone on the next run.
+"""Every kept episode survives Ctrl-C, a crash or a kill, at a cost per episode that does not grow with the
+dataset.
 
-Before an episode is written, :func:`begin_episode` notes what is on disk (the file list and copies of the
-metadata LeRobot rewrites); :func:`end_episode` drops the note once the episode is durable; a rerun that finds
-the note calls :func:`roll_back`. Ctrl-C and SIGTERM are held while an episode is written
-(:func:`deferred_interrupts`).
+LeRobot appends episodes to an open dataset cheaply (``save_episode``), but the dataset is readable only once
+finalized (parquet footers, buffered metadata), and reopening it afterwards reads all of its metadata: doing
+both after every episode makes an episode cost more the larger the dataset. A recording therefore finalizes
+only at a *checkpoint* (every few dozen episodes, and at the end or on Ctrl-C). Between checkpoints:
+
+- :func:`snapshot`, taken when the dataset is (re)opened after a checkpoint, notes what is on disk: the file
+  list and copies of the metadata files LeRobot rewrites in place;
+- each kept episode is written to the journal (:mod:`.journal`) and logged before LeRobot writes it.
+
+At a checkpoint the dataset is finalized, then :func:`commit` drops the snapshot: from there on the dataset
+itself holds the episodes and the journal is emptied. A rerun that finds a snapshot calls :func:`roll_back`,
+which brings the dataset back to its last checkpoint (whatever a kill left half-written), and replays the
+journal into it. Ctrl-C and SIGTERM are held while an episode or a checkpoint is written
+(:func:`deferred_interrupts`). Our own files (the log, the journal, the snapshot) are ``meta/actionflow_*``:
+a roll-back leaves them alone.
 """
 
 from __future__ import annotations
@@ -16,11 +27,13 @@ import signal
 from collections.abc import Iterator
 from pathlib import Path
 
-from lerobot_actionflow.tools.record.log import LOG_NAME
-
 PENDING = "actionflow_pending"
-"""Folder under ``meta/`` holding what an episode write may change; present only while one is written."""
+"""Folder under ``meta/`` holding the snapshot; present from a (re)opening of the dataset to its next
+checkpoint."""
+OWN_FILES = "meta/actionflow_"
+"""Prefix of the files this tool keeps beside LeRobot's (log, journal, snapshot): never rolled back."""
 RESTORED = ("meta/info.json", "meta/stats.json", "meta/tasks.parquet")
+"""LeRobot's files that an appended episode rewrites in place; every other file it writes is new."""
 
 
 @contextlib.contextmanager
@@ -48,35 +61,39 @@ def terminate_as_interrupt(signum, _frame):
     raise KeyboardInterrupt
 
 
-def begin_episode(root: Path) -> None:
-    """Note what is on disk before an episode is written, so that a kill half-way through can be undone."""
+def _dataset_files(root: Path) -> list[str]:
+    paths = (p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
+    return sorted(p for p in paths if not p.startswith(OWN_FILES))
+
+
+def snapshot(root: Path) -> None:
+    """Note the dataset as it is (finalized), so that what the episodes after it write can be undone."""
     pending = root / "meta" / PENDING
     shutil.rmtree(pending, ignore_errors=True)
     pending.mkdir()
     for rel in RESTORED:
         if (root / rel).is_file():
             shutil.copy2(root / rel, pending / Path(rel).name)
-    files = sorted(
-        p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file() and PENDING not in p.parts
-    )
     tmp = pending / "files.tmp"
-    tmp.write_text(json.dumps(files))
+    tmp.write_text(json.dumps(_dataset_files(root)))
     tmp.replace(pending / "files.json")  # written last: its presence means the snapshot is complete
 
 
-def end_episode(root: Path) -> None:
+def commit(root: Path) -> None:
+    """The dataset is finalized with every episode written since the snapshot: drop the snapshot."""
     shutil.rmtree(root / "meta" / PENDING, ignore_errors=True)
 
 
 def roll_back(root: Path) -> None:
-    """Remove every file an unfinished episode write added, and put LeRobot's metadata back as it was."""
+    """Bring the dataset back to its snapshot: remove every file written since and put LeRobot's rewritten
+    metadata back. Without a snapshot the dataset is as its last checkpoint left it: nothing to do."""
     pending = root / "meta" / PENDING
     listing = pending / "files.json"
-    if listing.is_file():  # else the kill came before the write started: the dataset is untouched
-        keep = set(json.loads(listing.read_text())) | {f"meta/{LOG_NAME}"}
-        for path in list(root.rglob("*")):
-            if path.is_file() and PENDING not in path.parts and path.relative_to(root).as_posix() not in keep:
-                path.unlink()
+    if listing.is_file():  # else the kill came before the snapshot was complete: nothing was written since
+        keep = set(json.loads(listing.read_text()))
+        for rel in _dataset_files(root):
+            if rel not in keep:
+                (root / rel).unlink()
         for rel in RESTORED:
             if (pending / Path(rel).name).is_file():
                 shutil.copy2(pending / Path(rel).name, root / rel)

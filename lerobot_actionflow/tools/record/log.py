@@ -1,5 +1,9 @@
 """The recording log beside LeRobot's metadata (``<root>/meta/actionflow_recording.json``): the recipe, and
-which seeds were kept and which failed. It lets a rerun resume and the dataset card tell the story."""
+which seeds were kept and which failed. It lets a rerun resume and the dataset card tell the story.
+
+A kept seed is logged once its episode is durable (in the journal, :mod:`.journal`), possibly before the
+dataset is finalized with it: the first ``total_episodes`` kept seeds are the finalized dataset's episodes,
+the rest are replayed from the journal by the next run."""
 
 from __future__ import annotations
 
@@ -17,8 +21,6 @@ class RecordingLog:
     recipe: dict
     kept_seeds: list[int] = field(default_factory=list)
     failed_seeds: list[int] = field(default_factory=list)
-    pending_seed: int | None = None
-    """Seed of the episode being written: set while LeRobot writes it, so that a kill half-way is undone."""
     seconds: float = 0.0
 
     @property
@@ -40,7 +42,11 @@ class RecordingLog:
     @classmethod
     def load(cls, root: Path) -> RecordingLog | None:
         path = root / "meta" / LOG_NAME
-        return cls(**json.loads(path.read_text())) if path.is_file() else None
+        if not path.is_file():
+            return None
+        data = json.loads(path.read_text())
+        data.pop("pending_seed", None)  # logs from before the journal: the roll-back undoes that seed
+        return cls(**data)
 
 
 def same_recording(a: dict, b: dict) -> list[str]:

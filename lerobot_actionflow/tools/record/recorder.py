@@ -1,29 +1,40 @@
 """The recording loop: run a task's scripted expert from consecutive seeds and write the successful episodes
-into a LeRobotDataset (format v3), converted through the token schema (:mod:`lerobot_actionflow.schema`)."""
+into a LeRobotDataset (format v3), converted through the token schema (:mod:`lerobot_actionflow.schema`).
+
+An episode costs the same at episode 10 and at episode 1000: the dataset stays open and episodes are appended
+with ``save_episode``; it is finalized and reopened only at a checkpoint, every ``checkpoint_every`` episodes
+and at the end. Kept episodes between checkpoints are durable through the journal (:mod:`.durability`).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import json
-import shutil
 import signal
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
-
 from lerobot_actionflow import schema
+from lerobot_actionflow.tools.record import journal
 from lerobot_actionflow.tools.record.durability import (
-    begin_episode,
+    commit,
     deferred_interrupts,
-    end_episode,
     roll_back,
+    snapshot,
     terminate_as_interrupt,
 )
 from lerobot_actionflow.tools.record.log import LOG_NAME, RecordingLog, same_recording
 from lerobot_actionflow.tools.record.recipe import Recipe
+from lerobot_actionflow.tools.record.simulate import Episode, episodes, make_env
 
 FPS = 20
+CHECKPOINT_EVERY = 50
+"""Episodes between checkpoints (finalize + reopen). Reopening reads all of the dataset's metadata, so its
+cost grows with the dataset; every 50 episodes it stays a small share of an episode's cost up to ~10^4
+episodes. More episodes between checkpoints only cost a longer journal replay after a kill."""
+
+__all__ = ["CHECKPOINT_EVERY", "FPS", "RecordResult", "make_env", "record"]
 
 
 @dataclass
@@ -34,19 +45,36 @@ class RecordResult:
     failed_now: int
     seconds: float
     log: RecordingLog
+    replayed: int = 0
+    """Episodes an interrupted run had kept, written into the dataset from the journal by this run."""
 
 
-def make_env(recipe: Recipe):
-    """The env a recipe records (``gym.make`` with its task, variant, obs mode and extra keywords)."""
-    import gymnasium as gym
-    from gym_actionflow import find_task
+def _total_episodes(root: Path) -> int:
+    return int(json.loads((root / "meta" / "info.json").read_text()).get("total_episodes", 0))
 
-    task = find_task(recipe.task)
-    return gym.make(task.env_id, **task.kwargs(recipe.variant, recipe.obs_mode), **recipe.env_kwargs)
+
+def _restore(root: Path, log: RecordingLog) -> list[int]:
+    """Bring the dataset at ``root`` back to its last checkpoint; return the kept seeds the journal holds
+    beyond it, to replay in this order."""
+    roll_back(root)
+    done = _total_episodes(root)
+    journaled = set(journal.seeds(root))
+    replay = log.kept_seeds[done:]
+    missing = [seed for seed in replay if seed not in journaled]
+    if done > len(log.kept_seeds) or missing:
+        raise RuntimeError(
+            f"{root}: the dataset has {done} finished episodes and its recording log lists "
+            f"{len(log.kept_seeds)} kept seeds, but the journal lacks seeds {missing}; delete it and record "
+            "again"
+        )
+    journal.discard(root, journaled - set(replay))  # already finalized, or journaled but never logged
+    return replay
 
 
 def _open_dataset(recipe: Recipe, root: Path, features: dict):
-    """Create the dataset, or reopen one this recipe already started; refuse anything else at ``root``."""
+    """Create the dataset, or reopen one this recipe already started (rolled back to its last checkpoint);
+    refuse anything else at ``root``. Returns the dataset, its log and the seeds to replay from the
+    journal."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     log = RecordingLog.load(root) if root.exists() else None
@@ -62,53 +90,122 @@ def _open_dataset(recipe: Recipe, root: Path, features: dict):
                 f"{root} holds a different recording ({'; '.join(diff)}); choose another --root or "
                 "--repo-id, or delete it"
             )
-        if log.pending_seed is not None:  # killed while an episode was written: undo it, it is recorded again
-            roll_back(root)
-            log.pending_seed = None
-            log.save(root)
-        end_episode(root)  # (killed after the episode was logged: only the note of the write is left)
-        info = json.loads((root / "meta" / "info.json").read_text())
-        done = int(info.get("total_episodes", 0))
-        if done != len(log.kept_seeds):
-            raise RuntimeError(
-                f"{root}: the dataset has {done} episodes but its recording log lists {len(log.kept_seeds)}; "
-                "delete it and record again"
-            )
-        if done == 0:  # nothing finished: start clean
-            shutil.rmtree(root)
-        else:
-            return LeRobotDataset.resume(recipe.repo_id, root=root), log
-    log = RecordingLog(recipe=asdict(recipe) | {"episodes": None})
-    ds = LeRobotDataset.create(
-        repo_id=recipe.repo_id,
-        fps=FPS,
-        features=features,
-        root=root,
-        robot_type="franka_panda",
-        use_videos=any(f["dtype"] == "video" for f in features.values()),
-    )
-    log.save(root)
-    return ds, log
+        replay = _restore(root, log)
+        ds = LeRobotDataset.resume(recipe.repo_id, root=root)
+    else:
+        log, replay = RecordingLog(recipe=asdict(recipe) | {"episodes": None}), []
+        ds = LeRobotDataset.create(
+            repo_id=recipe.repo_id,
+            fps=FPS,
+            features=features,
+            root=root,
+            robot_type="franka_panda",
+            use_videos=any(f["dtype"] == "video" for f in features.values()),
+        )
+        log.save(root)
+    snapshot(root)
+    return ds, log, replay
 
 
-def record(recipe: Recipe, root: str | Path | None = None, progress: bool = True) -> RecordResult:
-    """Record ``recipe`` into a LeRobotDataset at ``root`` (default ``$HF_LEROBOT_HOME/<repo_id>``)."""
-    import datasets
-    from gym_actionflow import find_task, make_expert, run_episode
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+class _Checkpointed:
+    """The open dataset: episodes are appended (:meth:`add`); :meth:`checkpoint` finalizes it, commits,
+    empties the journal and reopens it for more."""
+
+    def __init__(self, ds, root: Path, repo_id: str, every: int):
+        self.ds, self.root, self.repo_id, self.every = ds, root, repo_id, every
+        self.since = 0
+        self.closed = False
+
+    def add(self, episode: Episode) -> None:
+        import datasets
+
+        for frame in episode.frames():
+            self.ds.add_frame(frame)
+        datasets.disable_progress_bars()  # LeRobot's loaders turn them back on; one bar is enough
+        self.ds.save_episode()
+        self.since += 1
+
+    @property
+    def due(self) -> bool:
+        return self.since >= self.every
+
+    def checkpoint(self, reopen: bool) -> None:
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        if self.closed:  # the last checkpoint did not reopen: nothing was written since
+            return
+        self.ds.finalize()  # parquet footers and metadata written: the dataset holds every kept episode
+        commit(self.root)
+        journal.clear(self.root)
+        self.since = 0
+        self.closed = not reopen
+        if reopen:
+            self.ds = LeRobotDataset.resume(self.repo_id, root=self.root)
+            snapshot(self.root)
+
+
+@contextlib.contextmanager
+def _skip_empty_image_embedding():
+    """LeRobot 0.6's ``save_episode`` maps ``datasets``' ``embed_table_storage`` over the episode one row at a
+    time, whether or not a column holds images to embed: ~70 % of its cost on a dataset without image columns
+    (camera streams are videos here, not parquet columns). Skip it exactly when it changes nothing: when no
+    feature of the table needs embedding."""
+    from datasets.features.features import require_storage_embed
+    from lerobot.datasets import dataset_writer
+
+    original = dataset_writer.embed_images
+
+    def embed_images(dataset):
+        if any(require_storage_embed(feature) for feature in dataset.features.values()):
+            return original(dataset)
+        return dataset
+
+    dataset_writer.embed_images = embed_images
+    try:
+        yield
+    finally:
+        dataset_writer.embed_images = original
+
+
+def record(
+    recipe: Recipe,
+    root: str | Path | None = None,
+    progress: bool = True,
+    workers: int = 1,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+) -> RecordResult:
+    """Record ``recipe`` into a LeRobotDataset at ``root`` (default ``$HF_LEROBOT_HOME/<repo_id>``), or finish
+    recording it there.
+
+    ``workers`` processes simulate the episodes (1: this process does); the dataset is the same for any
+    number. Episodes are made final in the dataset every ``checkpoint_every`` episodes and when the recording
+    stops, also on Ctrl-C or SIGTERM; after a kill or a crash, the next run replays the kept episodes from the
+    journal.
+    """
+    from gym_actionflow import find_task
     from lerobot.utils.constants import HF_LEROBOT_HOME
     from tqdm import tqdm
 
+    if int(workers) != workers or workers < 1:
+        raise ValueError(
+            f"workers={workers!r}; expected an integer >= 1 (1 simulates in the recording process)"
+        )
+    if int(checkpoint_every) != checkpoint_every or checkpoint_every < 1:
+        raise ValueError(f"checkpoint_every={checkpoint_every!r}; expected an integer >= 1")
     task = find_task(recipe.task)
     task.kwargs(recipe.variant, recipe.obs_mode)  # a bad variant or obs mode fails before anything is written
     root = Path(root) if root is not None else HF_LEROBOT_HOME / recipe.repo_id
     env = make_env(recipe)
     features = schema.dataset_features(schema.observation_shapes(env.observation_space))
-    ds, log = _open_dataset(recipe, root, features)
-    description = env.unwrapped.task_description
+    if workers > 1:
+        env.close()  # the workers simulate, each on its own env
+        env = None
+    ds, log, replay = _open_dataset(recipe, root, features)
+    dataset = _Checkpointed(ds, root, recipe.repo_id, checkpoint_every)
     max_failures = max(20, recipe.episodes)  # an expert at < 50 % means something is wrong: stop early
     run_start = start = time.time()
     kept_now = failed_now = 0
+    half_written = False  # an exception in a LeRobot write: leave the rest to the next run's roll-back
     previous_term = signal.signal(signal.SIGTERM, terminate_as_interrupt)
     bar = tqdm(
         total=recipe.episodes,
@@ -117,48 +214,50 @@ def record(recipe: Recipe, root: str | Path | None = None, progress: bool = True
         unit="ep",
         disable=not progress,
     )
+    source = episodes(recipe, log.next_seed, workers, env)
     try:
-        while len(log.kept_seeds) < recipe.episodes:
-            if len(log.failed_seeds) > max_failures:
-                raise RuntimeError(
-                    f"the {task.name} expert failed {len(log.failed_seeds)} times "
-                    f"(success rate {log.success_rate:.0%}); stopping. Kept episodes are saved in {root}"
-                )
-            seed = log.next_seed
-            frames: list[dict] = []
-
-            def keep(obs: dict, action: np.ndarray, frames: list[dict] = frames) -> None:
-                frames.append(schema.dataset_frame(obs, action, description))
-
-            episode = run_episode(env, make_expert(env, noise=recipe.noise, seed=seed), seed, on_step=keep)
-            if not episode.success:
-                log.failed_seeds.append(seed)
-                failed_now += 1
-                log.save(root)
-                bar.set_postfix(failures=len(log.failed_seeds))
-                continue
-            with deferred_interrupts():
-                begin_episode(root)
-                log.pending_seed = seed
-                log.save(root)
-                for frame in frames:
-                    ds.add_frame(frame)
-                datasets.disable_progress_bars()  # LeRobot's loaders turn them back on; one bar is enough
-                ds.save_episode()
-                ds.finalize()  # parquet footers written: this episode survives anything from here on
-                log.kept_seeds.append(seed)
-                log.pending_seed = None
-                log.seconds += time.time() - start
-                start = time.time()
-                log.save(root)
-                end_episode(root)
-            kept_now += 1
-            bar.update(1)
-            if len(log.kept_seeds) < recipe.episodes:
-                ds = LeRobotDataset.resume(recipe.repo_id, root=root)
+        with _skip_empty_image_embedding(), contextlib.closing(source):
+            for seed in replay:
+                with deferred_interrupts():
+                    half_written = True
+                    dataset.add(journal.read(root, seed))
+                    if dataset.due:
+                        dataset.checkpoint(reopen=True)
+                    half_written = False
+            while len(log.kept_seeds) < recipe.episodes:
+                if len(log.failed_seeds) > max_failures:
+                    raise RuntimeError(
+                        f"the {task.name} expert failed {len(log.failed_seeds)} times "
+                        f"(success rate {log.success_rate:.0%}); stopping. Kept episodes are saved in {root}"
+                    )
+                episode = next(source)
+                if not episode.success:
+                    log.failed_seeds.append(episode.seed)
+                    failed_now += 1
+                    log.save(root)
+                    bar.set_postfix(failures=len(log.failed_seeds))
+                    continue
+                with deferred_interrupts():
+                    journal.write(root, episode)
+                    log.kept_seeds.append(episode.seed)
+                    log.seconds += time.time() - start
+                    start = time.time()
+                    log.save(root)  # the episode is durable from here on
+                    half_written = True
+                    dataset.add(episode)
+                    if dataset.due:
+                        dataset.checkpoint(reopen=len(log.kept_seeds) < recipe.episodes)
+                    half_written = False
+                kept_now += 1
+                bar.update(1)
     finally:
         bar.close()
-        ds.finalize()
-        env.close()
+        if not half_written:
+            with deferred_interrupts():
+                dataset.checkpoint(reopen=False)
+        if env is not None:
+            env.close()
         signal.signal(signal.SIGTERM, previous_term)
-    return RecordResult(root, len(log.kept_seeds), kept_now, failed_now, time.time() - run_start, log)
+    return RecordResult(
+        root, len(log.kept_seeds), kept_now, failed_now, time.time() - run_start, log, replayed=len(replay)
+    )

@@ -1,0 +1,143 @@
+"""Expert episodes from consecutive seeds, simulated in this process or in worker processes, always delivered
+in seed order: the recording is the same whatever the number of workers.
+
+Simulation (MuJoCo and the scripted expert) is the part of a recording that parallelises; writing the
+dataset stays in the recording process. Workers never fork the recording process (MuJoCo's renderer and torch
+do not survive a fork): they come from a fork server (:func:`_worker_context`), each with its own env and
+offscreen renderer, and they exit on their own if the recording process is killed. As with any
+``multiprocessing`` program, a script calling :func:`~.recorder.record` with workers needs an
+``if __name__ == "__main__":`` guard.
+"""
+
+from __future__ import annotations
+
+import itertools
+import multiprocessing
+import os
+import signal
+import threading
+from collections import deque
+from collections.abc import Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from lerobot_actionflow import schema
+from lerobot_actionflow.tools.record.recipe import Recipe
+
+LOOKAHEAD = 2
+"""Seeds handed out per worker ahead of the one the recording waits for: no worker idles while it writes."""
+
+
+@dataclass
+class Episode:
+    """One expert episode of a recipe, as dataset columns."""
+
+    seed: int
+    success: bool
+    columns: dict[str, np.ndarray]
+    """Dataset key -> ``[T, *shape]``: :func:`schema.dataset_frame`'s frames, stacked (empty on failure)."""
+    task: str
+    """The task description stored with every frame."""
+
+    def frames(self) -> Iterator[dict]:
+        """The ``LeRobotDataset.add_frame`` frames, one per step."""
+        length = len(next(iter(self.columns.values()))) if self.columns else 0
+        for i in range(length):
+            yield {key: column[i] for key, column in self.columns.items()} | {"task": self.task}
+
+
+def make_env(recipe: Recipe):
+    """The env a recipe records (``gym.make`` with its task, variant, obs mode and extra keywords)."""
+    import gymnasium as gym
+    from gym_actionflow import find_task
+
+    task = find_task(recipe.task)
+    return gym.make(task.env_id, **task.kwargs(recipe.variant, recipe.obs_mode), **recipe.env_kwargs)
+
+
+def simulate(env, recipe: Recipe, seed: int) -> Episode:
+    """Run the recipe's expert on ``env`` from ``seed``; the episode is a function of the seed alone."""
+    from gym_actionflow import make_expert, run_episode
+
+    task = env.unwrapped.task_description
+    frames: list[dict] = []
+
+    def keep(obs: dict, action: np.ndarray) -> None:
+        frames.append(schema.dataset_frame(obs, action, task))
+
+    result = run_episode(env, make_expert(env, noise=recipe.noise, seed=seed), seed, on_step=keep)
+    if not result.success:
+        return Episode(seed, False, {}, task)
+    columns = {key: np.stack([frame[key] for frame in frames]) for key in frames[0] if key != "task"}
+    return Episode(seed, True, columns, task)
+
+
+def episodes(recipe: Recipe, first_seed: int, workers: int, env=None) -> Iterator[Episode]:
+    """Episodes from seeds ``first_seed, first_seed + 1, ...`` in that order, endlessly.
+
+    ``workers == 1`` simulates here on ``env``; more runs a pool of that many worker processes, with up to
+    :data:`LOOKAHEAD` seeds per worker in flight. Closing the generator (or an exception in it) stops the
+    workers after the episodes under way; those are dropped, and their seeds are tried again by the next run.
+    """
+    seeds = itertools.count(first_seed)
+    if workers == 1:
+        if env is None:
+            raise ValueError("episodes(workers=1) simulates in this process: pass the env to simulate on")
+        for seed in seeds:
+            yield simulate(env, recipe, seed)
+        return
+    pool = ProcessPoolExecutor(
+        workers,
+        mp_context=_worker_context(),
+        initializer=_start_worker,
+        initargs=(recipe,),
+    )
+    try:
+        in_flight: deque[Future] = deque()
+        while True:
+            while len(in_flight) < LOOKAHEAD * workers:
+                in_flight.append(pool.submit(_simulate_in_worker, next(seeds)))
+            yield in_flight.popleft().result()  # a worker that dies (e.g. out of memory) raises here
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)  # episodes under way finish, queued ones never start
+
+
+def _worker_context() -> multiprocessing.context.BaseContext:
+    """Workers forked from a fork server that has imported this module (and the main one) once: they start
+    without paying the imports each (seconds: the package imports torch and LeRobot), and without inheriting
+    anything MuJoCo or torch started in the recording process. Spawned where there is no fork server."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["__main__", __name__])
+    return context
+
+
+_worker: dict = {}
+"""A worker process's recipe, and its env once the first seed arrives."""
+
+
+def _start_worker(recipe: Recipe) -> None:
+    # Ctrl-C in a terminal reaches every process of the group: the recording process handles it and stops the
+    # pool, so a worker must not die of it half-way through an episode first.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, daemon=True).start()
+    _worker["recipe"] = recipe
+
+
+def _exit_with_parent() -> None:
+    """A recording process killed by SIGKILL cannot stop its workers: they notice and exit (else they would
+    keep the fork server alive, and with it the recording's stdout). The sentinel ``multiprocessing`` gives a
+    child is closed when its parent exits, even while the parent is not yet reaped."""
+    parent = multiprocessing.parent_process()
+    if parent is not None:
+        parent.join()
+        os._exit(1)
+
+
+def _simulate_in_worker(seed: int) -> Episode:
+    if "env" not in _worker:  # made here, not in the initializer: an env error reaches the recording process
+        _worker["env"] = make_env(_worker["recipe"])
+    return simulate(_worker["env"], _worker["recipe"], seed)
