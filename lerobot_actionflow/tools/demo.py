@@ -20,6 +20,14 @@ import sys
 import time
 from pathlib import Path
 
+LOADER_FLAGS = ("--dataset.streaming=true", "--num_workers=1")
+"""How lerobot-train reads the dataset. Map-style LeRobotDataset spends 10-18 ms per sample on the history
+and action windows (Hugging Face `datasets` queries every column once per windowed key), so two loader workers
+kept a batch-32 step waiting for data more than half the time; LeRobot's streaming dataset builds the same
+windows (tests/test_streaming_loader.py) from files read in order, about 2.5 ms per sample, and one worker
+keeps up with the model step on the other core: 4.2x the samples/s (eval/bench_train.py,
+eval/results/train_cpu_main_job.md; README, "Training flags")."""
+
 EVAL_SEED = 100_000
 """First evaluation seed: far from the recording seeds (0, 1, ...), so every evaluated layout is new."""
 
@@ -51,8 +59,8 @@ def main(argv: list[str] | None = None) -> None:
         "--torch-threads",
         type=int,
         default=1,
-        help="OMP_NUM_THREADS for lerobot-train: on a 2-core CPU the trainer shares the cores with 2 loader "
-        "workers, and one thread each is faster than oversubscribing (use 0 to leave it to torch)",
+        help="OMP_NUM_THREADS for lerobot-train: on a 2-core CPU the trainer shares the cores with its "
+        "loader worker, and one thread each is faster than oversubscribing (use 0 to leave it to torch)",
     )
     args = parser.parse_args(argv)
 
@@ -79,7 +87,7 @@ def main(argv: list[str] | None = None) -> None:
         "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100",
         f"--policy.scheduler_decay_steps={args.steps}",
         f"--dataset.repo_id={repo_id}", f"--dataset.root={dataset}",
-        f"--steps={args.steps}", f"--batch_size={args.batch_size}", "--num_workers=2",
+        f"--steps={args.steps}", f"--batch_size={args.batch_size}", *LOADER_FLAGS,
         f"--save_freq={args.steps}", f"--log_freq={max(args.steps // 20, 1)}",
         f"--seed={args.seed}", f"--output_dir={out / 'train'}",
     ], **({"OMP_NUM_THREADS": str(args.torch_threads)} if args.torch_threads > 0 else {}))  # fmt: skip
