@@ -9,9 +9,10 @@
 Only successful expert episodes are kept; failures are counted and reported. Seeds are tried in order from
 ``--seed``, so a dataset is reproducible from its command, with any number of --workers. Every kept episode is
 durable before the next one is simulated: it goes to a journal beside the dataset (meta/actionflow_journal/)
-and the dataset is finalized every 50 episodes and when the recording stops. Ctrl-C, a crash or a kill keeps
-all of them (whatever a kill interrupts while it is written is undone), and running the same command again
-resumes where the recording stopped, replaying the journal instead of simulating those episodes again.
+and the dataset is finalized every 50 episodes (every tenth of it beyond 500) and when the recording stops.
+Ctrl-C, a crash or a kill keeps all of them (whatever a kill interrupts while it is written is undone), and
+running the same command again resumes where the recording stopped, replaying the journal instead of
+simulating those episodes again.
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@ dataset.
 LeRobot appends episodes to an open dataset cheaply (``save_episode``), but the dataset is readable only once
 finalized (parquet footers, buffered metadata), and reopening it afterwards reads all of its metadata: doing
 both after every episode makes an episode cost more the larger the dataset. A recording therefore finalizes
-only at a *checkpoint* (every few dozen episodes, and at the end or on Ctrl-C). Between checkpoints:
+only at a *checkpoint* (every 50 episodes or every tenth of the dataset, and at the end or on Ctrl-C).
+Between checkpoints:
 
 - :func:`snapshot`, taken when the dataset is (re)opened after a checkpoint, notes what is on disk: the file
   list and copies of the metadata files LeRobot rewrites in place;
