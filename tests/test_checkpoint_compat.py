@@ -62,3 +62,19 @@ def test_a_checkpoint_saved_before_a_default_changed_keeps_its_value(tmp_path):
     assert ActionFlowPolicy.from_pretrained(path, config=parsed).config.squash_limit == 5.0
     ActionFlowPolicy(config(squash_limit=3.0)).save_pretrained(tmp_path / "new")
     assert ActionFlowPolicy.from_pretrained(tmp_path / "new").config.squash_limit == 3.0
+
+
+def test_a_checkpoint_saved_before_rotation_noise_std_keeps_uniform_rotation_noise(tmp_path):
+    """rotation_noise_std's default became 0.5 after checkpoints trained with the paper's uniform SO(3)
+    noise were saved without the field: they load with None (uniform); one saved with the field keeps it."""
+    path = FIXTURES / "policy_ipa_se3"
+    assert "rotation_noise_std" not in json.loads((path / "config.json").read_text())
+    old = ActionFlowPolicy.from_pretrained(path)
+    assert old.config.rotation_noise_std is None and old.model.flow.rotation_noise_std is None
+    new = ActionFlowPolicy(config())
+    assert new.config.rotation_noise_std == 0.5 and new.model.flow.rotation_noise_std == 0.5
+    new.save_pretrained(tmp_path / "new")
+    assert ActionFlowPolicy.from_pretrained(tmp_path / "new").model.flow.rotation_noise_std == 0.5
+    uniform = ActionFlowPolicy(config(rotation_noise_std=None))
+    uniform.save_pretrained(tmp_path / "uniform")
+    assert ActionFlowPolicy.from_pretrained(tmp_path / "uniform").config.rotation_noise_std is None
