@@ -153,10 +153,14 @@ def _skip_empty_image_embedding():
     time, whether or not a column holds images to embed: ~70 % of its cost on a dataset without image columns
     (camera streams are videos here, not parquet columns). Skip it exactly when it changes nothing: when no
     feature of the table needs embedding."""
-    from datasets.features.features import require_storage_embed
-    from lerobot.datasets import dataset_writer
+    try:
+        from datasets.features.features import require_storage_embed
+        from lerobot.datasets import dataset_writer
 
-    original = dataset_writer.embed_images
+        original = dataset_writer.embed_images
+    except (ImportError, AttributeError):  # another LeRobot layout: record without the shortcut
+        yield
+        return
 
     def embed_images(dataset):
         if any(require_storage_embed(feature) for feature in dataset.features.values()):
