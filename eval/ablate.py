@@ -229,7 +229,8 @@ def table(results: Path) -> str:
     head = ["cell", "demos", "steps", "settings", "train s"] + [f"{v} success" for v in variants]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        settings = ", ".join(f"{k}={v}" for k, v in r["overrides"].items()) or "defaults"
+        parts = [f"{k}={v}" for k, v in r["overrides"].items()]
+        settings = ", ".join(parts + [f"env {k}={v}" for k, v in r["env_kwargs"].items()]) or "defaults"
         if r.get("checkpoint"):
             settings += f" (evaluating {Path(r['checkpoint']).name})"
         if r.get("note"):
