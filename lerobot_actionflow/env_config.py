@@ -40,6 +40,8 @@ class ActionFlowEnvConfig(EnvConfig):
     """``state`` (tokens) or ``pixels`` (tokens + wrist RGB)."""
     hanger_obs: str | None = None
     """MugHanging only: ``pose`` or ``point_cloud``."""
+    mug_yaw: str | None = None
+    """MugHanging only: ``any`` (the env's default) or ``slight`` (the paper's protocol)."""
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: dict(schema.FEATURES_MAP))
 
@@ -50,8 +52,9 @@ class ActionFlowEnvConfig(EnvConfig):
             self.variant = spec.kwargs(self.variant, self.obs_mode)["variant"]
         except ValueError as err:
             raise ValueError(f"--env.{err}") from None
-        if self.hanger_obs is not None and spec.name != "MugHanging":
-            raise ValueError(f"--env.hanger_obs is a MugHanging option; the task is {spec.name}")
+        for name in ("hanger_obs", "mug_yaw"):
+            if getattr(self, name) is not None and spec.name != "MugHanging":
+                raise ValueError(f"--env.{name} is a MugHanging option; the task is {spec.name}")
         if not self.features:
             self.features = self._features_from_env(spec)
 
@@ -68,6 +71,7 @@ class ActionFlowEnvConfig(EnvConfig):
     def gym_kwargs(self) -> dict:
         spec = _task_spec(self.task)
         kwargs = spec.kwargs(self.variant, self.obs_mode)
-        if self.hanger_obs is not None:
-            kwargs["hanger_obs"] = self.hanger_obs
+        for name in ("hanger_obs", "mug_yaw"):
+            if getattr(self, name) is not None:
+                kwargs[name] = getattr(self, name)
         return kwargs

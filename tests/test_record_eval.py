@@ -290,6 +290,17 @@ def test_unknown_task_is_a_clear_error_and_writes_nothing(tmp_path):
         ActionFlowEnvConfig(task="Juggle-v0")
 
 
+def test_env_config_passes_mughanging_options_and_refuses_them_elsewhere():
+    """--env.mug_yaw / --env.hanger_obs reach gym.make for MugHanging (the paper's protocol through
+    lerobot-eval) and are clear errors on any other task; a bad value fails when the env is made."""
+    config = ActionFlowEnvConfig(task="MugHanging-v0", variant="scene_moved", mug_yaw="slight")
+    assert config.gym_kwargs == {"variant": "scene_moved", "obs_mode": "state", "mug_yaw": "slight"}
+    with pytest.raises(ValueError, match="--env.mug_yaw is a MugHanging option; the task is Stack"):
+        ActionFlowEnvConfig(task="Stack-v0", mug_yaw="slight")
+    with pytest.raises(ValueError, match="mug_yaw='tiny'; expected one of"):
+        ActionFlowEnvConfig(task="MugHanging-v0", mug_yaw="tiny")
+
+
 def test_recipe_with_a_missing_field_is_a_clear_error(tmp_path):
     recipe = tmp_path / "bad.toml"
     recipe.write_text('task = "Stack"\nvariant = "D0"\nrepo_id = "local/bad"\n')
