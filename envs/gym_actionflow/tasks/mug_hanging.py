@@ -246,7 +246,8 @@ class MugHangingEnv(ManipulationEnv):
 
     ## Version history
     * v0: initial release; the hanger placement is the `variant` keyword of every task (`layout=`, its first
-      name, still works with a DeprecationWarning).
+      name, still works with a DeprecationWarning). Added since, defaults unchanged: `mug_yaw` and
+      `variant="scene_moved"`.
     """
 
     entity_names = ("mug", "hanger")
