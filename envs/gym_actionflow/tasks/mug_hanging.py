@@ -258,8 +258,8 @@ class MugHangingEnv(ManipulationEnv):
     def __init__(self, variant: str | None = None, hanger_obs: str = "pose", n_points: int = 512,
                  layout: str | None = None, mug_yaw: str = "any", **kwargs) -> None:
         if layout is not None:
-            warnings.warn("MugHangingEnv(layout=...) is deprecated: use variant=... (the same values, "
-                          "'train' or 'test'), the keyword of every gym_actionflow task", DeprecationWarning,
+            warnings.warn("MugHangingEnv(layout=...) is deprecated: use variant=... (the same values), "
+                          "the keyword of every gym_actionflow task", DeprecationWarning,
                           stacklevel=2)
             check_choice("layout", layout, self.variants, " (where the hanger stands)")
             if variant is not None and variant != layout:
