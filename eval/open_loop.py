@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from ablate import Batches, record  # noqa: E402
 
 from lerobot_actionflow import ActionFlowPolicy  # noqa: E402
+from lerobot_actionflow.core import geometry  # noqa: E402
 
 
 def phases(data: dict) -> dict[str, np.ndarray]:
@@ -44,15 +45,6 @@ def phases(data: dict) -> dict[str, np.ndarray]:
         release[idx[max(opened - 12, 0) : opened]] = True
     return {"all frames": np.ones(len(grip), bool), "12 before grasp": grasp, "carry": carry,
             "12 before release": release}
-
-
-def rotation_error_deg(a: torch.Tensor, b: torch.Tensor) -> np.ndarray:
-    """Geodesic angle (degrees) between the rotations of pose-9 actions ``[..., 10]``."""
-    from lerobot_actionflow.core import geometry as g
-
-    ra, rb = g.rot6d_to_matrix(a[..., 3:9]), g.rot6d_to_matrix(b[..., 3:9])
-    cos = (((ra.transpose(-1, -2) @ rb).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
-    return torch.rad2deg(torch.arccos(cos)).numpy()
 
 
 @torch.no_grad()
@@ -81,10 +73,11 @@ def main(argv: list[str] | None = None) -> None:
         torch.manual_seed(s)
         chunks.append(policy.predict_action_chunk(batch))
     chunks = torch.stack(chunks)  # [S, n, H, 10]
-    err = (chunks[0, ..., :3] - demo[..., :3]).norm(dim=-1).numpy() * 1000  # mm
+    trans_err, rot_err = geometry.pose9_errors(chunks[0, ..., :9], demo[..., :9])  # [n, H] m, rad
+    err = trans_err.numpy() * 1000  # mm
     spread = (chunks[..., :3] - chunks[..., :3].mean(0)).norm(dim=-1).mean(0).numpy() * 1000
     wrong = (chunks[0, ..., 9].sign() != demo[..., 9].sign()).numpy()
-    rot_err = rotation_error_deg(chunks[0], demo)  # [n, H]
+    rot_err = np.degrees(rot_err.numpy())
     print(f"{args.checkpoint}: {args.episodes} {args.task} {args.variant} demonstrations, seeds {args.seed}+")
     print("| frames | n | error step 0 / 3 / 7 (mm) | rotation error step 7 / 15 (deg) "
           "| rotation step 15 > 20 deg | sample spread step 0 / 7 (mm) | gripper wrong 0-7 |")

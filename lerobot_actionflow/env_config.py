@@ -17,6 +17,9 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_actionflow import schema
 
+MUGHANGING_OPTIONS = ("hanger_obs", "mug_yaw")
+"""Env-config fields passed to ``gym.make`` for MugHanging only."""
+
 
 def _task_spec(task: str):
     from gym_actionflow import find_task
@@ -52,7 +55,7 @@ class ActionFlowEnvConfig(EnvConfig):
             self.variant = spec.kwargs(self.variant, self.obs_mode)["variant"]
         except ValueError as err:
             raise ValueError(f"--env.{err}") from None
-        for name in ("hanger_obs", "mug_yaw"):
+        for name in MUGHANGING_OPTIONS:
             if getattr(self, name) is not None and spec.name != "MugHanging":
                 raise ValueError(f"--env.{name} is a MugHanging option; the task is {spec.name}")
         if not self.features:
@@ -71,7 +74,7 @@ class ActionFlowEnvConfig(EnvConfig):
     def gym_kwargs(self) -> dict:
         spec = _task_spec(self.task)
         kwargs = spec.kwargs(self.variant, self.obs_mode)
-        for name in ("hanger_obs", "mug_yaw"):
+        for name in MUGHANGING_OPTIONS:
             if getattr(self, name) is not None:
                 kwargs[name] = getattr(self, name)
         return kwargs

@@ -274,6 +274,8 @@ class MugHangingEnv(ManipulationEnv):
             )
         check_choice("mug_yaw", mug_yaw, tuple(MUG_YAWS), " (the mug's yaw range)")
         self.mug_yaw = mug_yaw
+        self.mug_region = Region(MUG_REGION.x, MUG_REGION.y, MUG_YAWS[mug_yaw])
+        """Where and at which yaw the mug stands (in ``train``'s frame of the hanger for ``scene_moved``)."""
         self.hanger_obs = hanger_obs
         self.n_points = int(n_points)
         self._cloud = np.zeros((self.n_points, 3), dtype=np.float32)
@@ -317,8 +319,7 @@ class MugHangingEnv(ManipulationEnv):
         region = regions[int(rng.integers(len(regions)))]
         xy, yaw = region.sample(rng)
         self.place_hanger(xy, yaw)
-        region = Region(MUG_REGION.x, MUG_REGION.y, MUG_YAWS[self.mug_yaw])
-        mug_xy, mug_yaw = region.sample(rng)
+        mug_xy, mug_yaw = self.mug_region.sample(rng)
         if self.variant == "scene_moved":  # the mug where training puts it relative to the hanger
             turn = yaw - TRAIN_HANGER[1]
             c, s = np.cos(turn), np.sin(turn)

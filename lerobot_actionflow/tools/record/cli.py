@@ -111,10 +111,6 @@ def recipe_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    import logging
-
-    # Without a system FFmpeg, torchcodec logs a long traceback and LeRobot falls back to pyav: harmless here.
-    logging.getLogger("lerobot.utils.import_utils").setLevel(logging.ERROR)
     # A process started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C and
     # `kill -INT` must still stop a recording cleanly.
     signal.signal(signal.SIGINT, signal.default_int_handler)
