@@ -76,3 +76,14 @@ def test_a_held_above_b_is_not_success():
     assert np.linalg.norm(a[:2] - b[:2]) < 0.01 and a[2] > b[2]
     assert not base.is_success()
     env.close()
+
+
+def test_starting_ranges_are_mimicgens():
+    """Cube centres start within MimicGen's Stack ranges: +-0.08 m in D0 (narrower than Stack Three's
+    +-0.10 m, which Stack once inherited) and +-0.20 m in D1, each range filled, not a smaller square."""
+    for variant, half in (("D0", 0.08), ("D1", 0.20)):
+        env = gym.make("gym_actionflow/Stack-v0", variant=variant)
+        xy = np.concatenate([env.reset(seed=s)[0]["token_poses"][1:, :2] for s in range(30)])
+        assert np.abs(xy).max() <= half + 1e-6, variant
+        assert np.abs(xy).max() > 0.8 * half, variant
+        env.close()

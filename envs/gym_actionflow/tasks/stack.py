@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from gym_actionflow.tasks.stack_three import StackThreeEnv
+
+RANGE = {"D0": 0.08, "D1": 0.20}
+"""Half-width (m) of the square the cubes' centres are drawn from, per variant: MimicGen's Stack_D0 / D1 (its
+Stack D0 is narrower than Stack Three's +-0.10 m)."""
 
 
 class StackEnv(StackThreeEnv):
     """Stack two cubes: A (red, 4 cm) on B (green, 5 cm).
 
     MimicGen's Stack task, rebuilt on raw MuJoCo: one pick and one place, the suite's shortest task (about
-    75 expert steps). It shares Stack Three's cubes, placement and success rule.
+    75 expert steps). It shares Stack Three's cubes, placement sampler and success rule; only its D0 range
+    differs.
 
     ## Observation
     | key | shape | content |
@@ -33,16 +40,20 @@ class StackEnv(StackThreeEnv):
 
     ## Starting state
     The arm at its home pose, gripper open. Cubes on the table, non-overlapping, yaw uniform in [0, 2 pi), x
-    and y uniform in +-0.10 m (`variant="D0"`) or +-0.20 m (`variant="D1"`) around the table centre.
+    and y uniform in +-0.08 m (`variant="D0"`) or +-0.20 m (`variant="D1"`) around the table centre:
+    MimicGen's Stack_D0 / Stack_D1 ranges (MimicGen has no Stack D2).
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (200).
 
     ## Version history
     * v0: initial release.
+    * v0, issue 13: D0 narrowed from +-0.10 m to MimicGen's +-0.08 m (the new square lies inside the old one;
+      datasets recorded earlier spread the cubes wider).
     """
 
     entity_names = ("cube_a", "cube_b")
+    half_range: ClassVar[dict[str, float]] = RANGE
     task_description = "Stack the red cube on the green cube."
 
     def _check_success(self) -> bool:

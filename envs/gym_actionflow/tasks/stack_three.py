@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import mujoco
 import numpy as np
 
@@ -12,6 +14,8 @@ from gym_actionflow.placement import sample_separated, square
 CUBE_HALF = {"cube_a": 0.02, "cube_b": 0.025, "cube_c": 0.02}
 CUBE_RGBA = {"cube_a": (0.85, 0.15, 0.15, 1), "cube_b": (0.15, 0.7, 0.2, 1), "cube_c": (0.15, 0.3, 0.85, 1)}
 RANGE = {"D0": 0.10, "D1": 0.20}
+"""Half-width (m) of the square the cubes' centres are drawn from, per variant (MimicGen's StackThree_D0 /
+D1)."""
 LIFT = 0.01
 """A stacked cube's bottom face must be this far above the table (m)."""
 
@@ -59,7 +63,8 @@ class StackThreeEnv(ManipulationEnv):
 
     ## Starting state
     The arm at its home pose, gripper open. Cubes on the table, non-overlapping, yaw uniform in [0, 2 pi), x
-    and y uniform in +-0.10 m (`variant="D0"`) or +-0.20 m (`variant="D1"`) around the table centre.
+    and y uniform in +-0.10 m (`variant="D0"`) or +-0.20 m (`variant="D1"`) around the table centre:
+    MimicGen's StackThree_D0 / StackThree_D1 ranges (MimicGen has no Stack Three D2).
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (400).
@@ -69,6 +74,8 @@ class StackThreeEnv(ManipulationEnv):
     """
 
     entity_names = ("cube_a", "cube_b", "cube_c")
+    half_range: ClassVar[dict[str, float]] = RANGE
+    """Placement half-width per variant (Stack has its own)."""
     task_description = "Stack the red cube on the green cube, then the blue cube on the red cube."
 
     def _build_task(self, spec: mujoco.MjSpec) -> None:
@@ -82,7 +89,7 @@ class StackThreeEnv(ManipulationEnv):
         self.table_geoms = {self.model.geom("table").id}
 
     def _sample_layout(self, rng: np.random.Generator) -> None:
-        half = RANGE[self.variant]
+        half = self.half_range[self.variant]
         names = self.entity_names
         radii = [CUBE_HALF[n] * np.sqrt(2) + 0.01 for n in names]
         placed = sample_separated(rng, [square(half)] * len(names), radii)
