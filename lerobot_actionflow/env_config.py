@@ -38,7 +38,8 @@ class ActionFlowEnvConfig(EnvConfig):
     task: str | None = "StackThree-v0"
     fps: int = 20
     variant: str | None = None
-    """Initial-state distribution: D0 / D1, or train / test for MugHanging; None = the task's first."""
+    """Initial-state distribution: D0 / D1 (/ D2 for ThreePieceAssembly, Coffee, Threading), or train / test /
+    scene_moved for MugHanging; None = the task's first (the registry's ``variants`` lists them)."""
     obs_mode: str = "state"
     """``state`` (tokens) or ``pixels`` (tokens + wrist RGB)."""
     hanger_obs: str | None = None

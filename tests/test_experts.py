@@ -10,13 +10,15 @@ import gymnasium as gym
 import pytest
 from gym_actionflow import TASKS, make_expert, run_episode
 
+D012 = [(variant, seed, 0.0) for variant in ("D0", "D1", "D2") for seed in (0, 1, 2)]
 CASES: dict[str, list[tuple[str, int, float]]] = {
     # task: (variant, seed, expert noise); the expert is seeded with the episode's seed.
     "Stack": [(variant, seed, 1.0) for variant in ("D0", "D1") for seed in (0, 1, 2)],
     "StackThree": [(variant, seed, 0.0) for variant in ("D0", "D1") for seed in (0, 1, 2)],
-    "ThreePieceAssembly": [(variant, seed, 0.0) for variant in ("D0", "D1") for seed in (0, 1, 2)],
-    "Coffee": [(variant, seed, 0.0) for variant in ("D0", "D1") for seed in (0, 1, 2)],
-    "Threading": [(variant, seed, 0.0) for variant in ("D0", "D1") for seed in (0, 1, 2)],
+    # D2 (MimicGen's widest layouts) also once at the recording noise.
+    "ThreePieceAssembly": [*D012, ("D2", 3, 1.0)],
+    "Coffee": [*D012, ("D2", 3, 1.0)],
+    "Threading": [*D012, ("D2", 3, 1.0)],
     "Lightbulb": [("D0", seed, noise) for noise in (0.0, 1.0) for seed in (0, 1, 2)],
     # Test seeds 0 and 1 put the hanger on the right and on the left side of the table.
     "MugHanging": [("train", 0, 0.0), ("train", 1, 1.0), ("test", 0, 0.0), ("test", 1, 1.0),
@@ -38,6 +40,12 @@ PARAMS = [
 
 def test_every_registered_task_has_expert_cases():
     assert set(CASES) == {task.name for task in TASKS}
+
+
+def test_every_registered_variant_has_expert_cases():
+    """Guards against a variant added to the registry whose expert no test runs."""
+    for task in TASKS:
+        assert set(task.variants) <= {variant for variant, _, _ in CASES[task.name]}, task.name
 
 
 @pytest.mark.parametrize(("task", "variant", "seed", "noise"), PARAMS)

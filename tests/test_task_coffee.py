@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from gym_actionflow.geometry import pose9
 from gym_actionflow.tasks.coffee import (
+    FOOTPRINT_CENTER_Y,
     HINGE_Z,
     HOLDER_DEPTH,
     HOLDER_FLOOR_Z,
@@ -152,3 +153,26 @@ def test_d0_fixes_the_machine_and_d1_moves_it():
     assert np.all((d0[:, 3] >= -0.13) & (d0[:, 3] <= -0.07) & (d0[:, 4] >= 0.17) & (d0[:, 4] <= 0.23))
     assert np.all((d1[:, 3] >= -0.2) & (d1[:, 3] <= 0.05) & (d1[:, 4] >= 0.17) & (d1[:, 4] <= 0.3))
     assert np.ptp(d1[:, 3]) > np.ptp(d0[:, 3])
+
+
+def test_d2_swaps_the_sides_of_d1():
+    """D2 holds MimicGen's Coffee_D2 ranges: the machine's footprint centre in x [-0.05, 0.05], y [0.1, 0.2],
+    yaw [120, 210] degrees (facing the pod's side); the pod in x [-0.2, 0.05], y [-0.3, -0.17]. Guards against
+    D2 keeping D1's sides, a yaw range that turns the holder away from the pod, or ranges that collapse."""
+    env = gym.make("gym_actionflow/Coffee-v0", variant="D2").unwrapped
+    rows = []
+    for seed in range(30):
+        obs, _ = env.reset(seed=seed)
+        holder, pod = obs["token_poses"][2].astype(np.float64), obs["token_poses"][1].astype(np.float64)
+        yaw = np.arctan2(holder[4], holder[3]) % (2 * np.pi)
+        footprint = holder[:2] + FOOTPRINT_CENTER_Y * holder[6:8]  # along the holder's +y axis
+        assert -0.05 - 1e-6 <= footprint[0] <= 0.05 + 1e-6 and 0.1 - 1e-6 <= footprint[1] <= 0.2 + 1e-6
+        assert 2 * np.pi / 3 - 1e-5 <= yaw <= 7 * np.pi / 6 + 1e-5
+        assert -0.2 - 1e-6 <= pod[0] <= 0.05 + 1e-6 and -0.3 - 1e-6 <= pod[1] <= -0.17 + 1e-6
+        assert np.dot(holder[6:8], pod[:2] - holder[:2]) > 0, "the holder should face the pod's side"
+        assert env.lid_angle() == pytest.approx(LID_OPEN, abs=0.01) and not env.is_success()
+        rows.append([*footprint, yaw, *pod[:2]])
+    rows = np.array(rows)
+    assert np.ptp(rows[:, 0]) > 0.06 and np.ptp(rows[:, 1]) > 0.06 and np.ptp(rows[:, 2]) > 1.0
+    assert np.ptp(rows[:, 3]) > 0.15 and np.ptp(rows[:, 4]) > 0.08
+    env.close()

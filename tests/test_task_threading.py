@@ -151,7 +151,37 @@ def test_d1_moves_the_tripod():
     e.close()
 
 
-@pytest.mark.parametrize("variant", ["D0", "D1"])
+def test_d2_is_d1_mirrored_left_right():
+    """D2 holds MimicGen's Threading_D2 ranges: the needle's centre in x [-0.2, 0.05], y [-0.25, -0.15], its
+    tip within 120 degrees of pointing at the robot; the tripod in x [-0.1, 0.15], y [0.1, 0.2], its ring
+    axis at yaw [pi/6, 5pi/6] (away from the needle). Guards against D2 keeping D1's sides, a ring axis that
+    points back at the needle, or ranges that collapse to a point."""
+    e = ThreadingEnv(variant="D2", render_mode=None)
+    tripods, needles = [], []
+    for seed in range(30):
+        obs, info = e.reset(seed=seed)
+        ring = obs["token_poses"][2].astype(np.float64)
+        np.testing.assert_allclose(ring_centre_from_geoms(e), ring[:3], atol=1e-6)
+        assert abs(ring[2] - RING_HEIGHT) < 1e-6 and abs(ring[5]) < 1e-6
+        ring_yaw = np.arctan2(ring[4], ring[3])
+        assert -0.1 - 1e-6 <= ring[0] <= 0.15 + 1e-6 and 0.1 - 1e-6 <= ring[1] <= 0.2 + 1e-6
+        assert np.pi / 6 - 1e-6 <= ring_yaw <= 5 * np.pi / 6 + 1e-6
+        needle = obs["token_poses"][1].astype(np.float64)
+        centre = needle[:3] + NEEDLE_CENTRE * needle[3:6]
+        assert abs(needle[2] - 0.02) < 0.002 and abs(needle[5]) < 0.01
+        assert -0.2 - 1e-3 <= centre[0] <= 0.05 + 1e-3 and -0.25 - 1e-3 <= centre[1] <= -0.15 + 1e-3
+        assert needle[3] <= np.cos(np.pi / 3) + 1e-3, "tip more than 120 degrees from pointing at the robot"
+        assert not info["is_success"]
+        tripods.append([*ring[:2], ring_yaw])
+        needles.append([*centre[:2], np.arctan2(needle[4], needle[3])])
+    tripods, needles = np.array(tripods), np.array(needles)
+    assert np.ptp(tripods[:, 0]) > 0.15 and np.ptp(tripods[:, 1]) > 0.06 and np.ptp(tripods[:, 2]) > 1.2
+    assert np.ptp(needles[:, 0]) > 0.15 and np.ptp(needles[:, 1]) > 0.06
+    assert needles[:, 2].min() < -np.pi / 2 and needles[:, 2].max() > np.pi / 2, "tips both ways round"
+    e.close()
+
+
+@pytest.mark.parametrize("variant", ["D0", "D1", "D2"])
 def test_needle_starts_on_the_table_in_range(variant):
     """The needle token is the handle centre, its first column the tip direction: the needle starts flat on
     the table, its middle (NEEDLE_CENTRE along the bar) inside MimicGen's placement ranges."""

@@ -181,3 +181,34 @@ def test_layout_separated_reachable_and_seeded(variant):
         again, _ = env.reset(seed=s)
         np.testing.assert_array_equal(again["token_poses"][1:], poses[1:])
         assert not env.is_success()
+
+
+def test_d2_turns_the_base_and_the_pieces():
+    """D2 holds MimicGen's ThreePieceAssembly_D2 ranges: the base anywhere in +-0.22 m turned by up to 45
+    degrees, each piece anywhere in +-0.22 m with its own yaw in [0, pi]; within reach, apart, upright, and
+    the base's walls turned with its token. Guards against D2 falling back to D1's fixed yaws, pieces sharing
+    one yaw, or a base whose geoms do not follow its sampled pose."""
+    env = gym.make(ENV_ID, variant="D2").unwrapped
+    yaws = []
+    for s in range(30):
+        obs, _ = env.reset(seed=s)
+        poses = obs["token_poses"].astype(np.float64)
+        base_yaw, p1_yaw, p2_yaw = (np.arctan2(row[4], row[3]) for row in poses[1:])
+        assert abs(base_yaw) <= np.pi / 4 + 1e-6
+        assert np.sin(p1_yaw) >= -1e-6 and np.sin(p2_yaw) >= -1e-6  # yaw in [0, pi]
+        for row in poses[1:]:
+            assert np.all(np.abs(row[:2]) <= RANGE + 1e-6)
+            assert np.linalg.norm(row[:2] - ROBOT_BASE[:2]) <= REACH + 1e-6
+            assert abs(row[2]) < 2e-3 and abs(row[5]) < 1e-3  # on the table, upright
+        base, p1, p2 = poses[1, :2], poses[2, :2], poses[3, :2]
+        assert min(np.linalg.norm(p1 - base), np.linalg.norm(p2 - base)) > 0.19
+        assert np.linalg.norm(p1 - p2) > 0.14
+        # The +x wall sits on the base's turned x axis.
+        wall = env.data.geom_xpos[env.model.geom("base_wall_px").id][:2] - base
+        assert abs(np.arctan2(wall[1], wall[0]) - base_yaw) < 1e-6
+        assert not env.is_success()
+        yaws.append([base_yaw, p1_yaw % np.pi, p2_yaw % np.pi])
+    yaws = np.array(yaws)
+    assert np.ptp(yaws[:, 0]) > 1.0 and np.ptp(yaws[:, 1]) > 2.0 and np.ptp(yaws[:, 2]) > 2.0
+    assert np.abs(yaws[:, 1] - yaws[:, 2]).max() > 0.5, "the pieces' yaws should be drawn apart"
+    env.close()

@@ -56,12 +56,16 @@ point, as robosuite places an object by the centre of its bounding box."""
 MACHINE_REGION = {
     "D0": Region((0.0, 0.0), (-0.1, -0.1), (-np.pi / 6, -np.pi / 6)),
     "D1": Region((0.05, 0.15), (-0.2, -0.1), (-np.pi / 6, np.pi / 3)),
+    "D2": Region((-0.05, 0.05), (0.1, 0.2), (2 * np.pi / 3, 7 * np.pi / 6)),
 }
 POD_REGION = {
     "D0": Region((-0.13, -0.07), (0.17, 0.23), (0.0, 0.0)),
     "D1": Region((-0.2, 0.05), (0.17, 0.3), (0.0, 0.0)),
+    "D2": Region((-0.2, 0.05), (-0.3, -0.17), (0.0, 0.0)),
 }
-"""MimicGen's Coffee_D0 / Coffee_D1 placement bounds (machine footprint centre and yaw, pod position)."""
+"""MimicGen's Coffee_D0 / D1 / D2 placement bounds (machine footprint centre and yaw, pod position). D2 is D1
+with the sides swapped: the machine on the robot's left, its yaw range D1's mirrored (yaw -> pi - yaw), and
+5-10 cm nearer the robot (MimicGen moved it for the arm's reach); the pod on the right."""
 
 
 def _add_machine(spec: mujoco.MjSpec) -> None:
@@ -135,18 +139,28 @@ class CoffeeEnv(ManipulationEnv):
     + 2 mm), and the pod lies vertically between the holder floor and the underside of the lid.
 
     ## Starting state
-    The arm at its home pose, gripper open, the lid open at 120 degrees. MimicGen's placements:
-    `variant="D0"`: machine footprint centre at (0, -0.1) with yaw -30 degrees, pod at x in [-0.13, -0.07],
-    y in [0.17, 0.23]. `variant="D1"`: machine centre x in [0.05, 0.15], y in [-0.2, -0.1], yaw in
-    [-30, 60] degrees; pod x in [-0.2, 0.05], y in [0.17, 0.3]. The pod stands upright on the table.
+    The arm at its home pose, gripper open, the lid open at 120 degrees. The pod stands upright on the table.
+    MimicGen's Coffee_D0 / D1 / D2 placements (machine: the centre of its footprint, as robosuite places it):
+
+    | variant | machine x | machine y | machine yaw | pod x | pod y |
+    |---|---|---|---|---|---|
+    | `"D0"` | 0 | -0.1 | -30 deg | [-0.13, -0.07] | [0.17, 0.23] |
+    | `"D1"` | [0.05, 0.15] | [-0.2, -0.1] | [-30, 60] deg | [-0.2, 0.05] | [0.17, 0.3] |
+    | `"D2"` | [-0.05, 0.05] | [0.1, 0.2] | [120, 210] deg | [-0.2, 0.05] | [-0.3, -0.17] |
+
+    D2 swaps the sides of D1: the machine stands on the other side of the table (its yaw range is D1's
+    mirrored, yaw -> pi - yaw, so it still faces the pod's side) and 10 cm nearer the robot, and the pod
+    starts on the side the machine had. The ranges are MimicGen's unchanged.
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (500).
 
     ## Version history
     * v0: initial release.
+    * v0, issue 13: variant D2 (MimicGen's Coffee_D2); D0 and D1 unchanged.
     """
 
+    variants = ("D0", "D1", "D2")
     entity_names = ("pod", "machine", "lid")
     scalar_names = ("lid_angle",)
     task_description = "Put the coffee pod into the coffee machine's pod holder, then close the lid."

@@ -35,17 +35,21 @@ THROUGH = 0.01
 _PLATE_Z = 0.085
 _LEG_RADIUS = 0.008
 
-# Placement (MimicGen's Threading_D0 / Threading_D1 bounds; the table centre is the world origin here too).
-NEEDLE_X = {"D0": (-0.2, -0.05), "D1": (-0.2, 0.05)}
-NEEDLE_Y = {"D0": (0.15, 0.25), "D1": (0.15, 0.25)}
-NEEDLE_YAW = {"D0": (-7 * np.pi / 6, -5 * np.pi / 6), "D1": (-5 * np.pi / 3, -np.pi / 3)}
-"""Yaw of the needle's x axis (tip direction). MimicGen's z_rot ranges ([-2pi/3, -pi/3] D0, [-7pi/6, pi/6] D1)
-rotate a needle whose tip is along its -y axis, so the tip direction is z_rot - pi/2."""
-TRIPOD_X = {"D0": (0.0, 0.0), "D1": (-0.1, 0.15)}
-TRIPOD_Y = {"D0": (-0.15, -0.15), "D1": (-0.2, -0.1)}
-TRIPOD_YAW = {"D0": (-np.pi / 2, -np.pi / 2), "D1": (-5 * np.pi / 6, -np.pi / 6)}
-"""Yaw of the ring axis. MimicGen's z_rot (pi/2 D0, [pi/6, 5pi/6] D1) is that of a ring whose axis points back
-towards the needle; ours points the other way, so it is MimicGen's + pi."""
+# Placement (MimicGen's Threading_D0 / D1 / D2 bounds; the table centre is the world origin here too). D2 is
+# D1 mirrored left / right (y -> -y): the needle on the robot's right, the tripod on its left.
+NEEDLE_X = {"D0": (-0.2, -0.05), "D1": (-0.2, 0.05), "D2": (-0.2, 0.05)}
+NEEDLE_Y = {"D0": (0.15, 0.25), "D1": (0.15, 0.25), "D2": (-0.25, -0.15)}
+NEEDLE_YAW = {"D0": (-7 * np.pi / 6, -5 * np.pi / 6), "D1": (-5 * np.pi / 3, -np.pi / 3),
+              "D2": (-5 * np.pi / 3, -np.pi / 3)}
+"""Yaw of the needle's x axis (tip direction). MimicGen's z_rot ranges ([-2pi/3, -pi/3] D0, [-7pi/6, pi/6] D1
+and D2) rotate a needle whose tip is along its -y axis, so the tip direction is z_rot - pi/2. The D1 range is
+symmetric about the table's x axis (tips towards the robot, +-120 degrees), so D2 keeps it."""
+TRIPOD_X = {"D0": (0.0, 0.0), "D1": (-0.1, 0.15), "D2": (-0.1, 0.15)}
+TRIPOD_Y = {"D0": (-0.15, -0.15), "D1": (-0.2, -0.1), "D2": (0.1, 0.2)}
+TRIPOD_YAW = {"D0": (-np.pi / 2, -np.pi / 2), "D1": (-5 * np.pi / 6, -np.pi / 6),
+              "D2": (np.pi / 6, 5 * np.pi / 6)}
+"""Yaw of the ring axis. MimicGen's z_rot (pi/2 D0, [pi/6, 5pi/6] D1, [-5pi/6, -pi/6] D2) is that of a ring
+whose axis points back towards the needle; ours points the other way, so it is MimicGen's + pi."""
 
 NEEDLE_RGBA = (0.35, 0.2, 0.1, 1.0)
 TRIPOD_RGBA = (0.85, 0.72, 0.5, 1.0)
@@ -126,19 +130,30 @@ class ThreadingEnv(ManipulationEnv):
     still be held.
 
     ## Starting state
-    The arm at its home pose, gripper open. MimicGen's ranges: the needle lies on the table with its centre
-    (the middle of its 16 cm length) uniform in x in [-0.2, -0.05], y in [0.15, 0.25] and its tip pointing at
-    yaw [-7pi/6, -5pi/6] (towards the robot, `variant="D0"`), or x in [-0.2, 0.05], y in [0.15, 0.25], yaw
-    [-5pi/3, -pi/3] (`variant="D1"`). The tripod stands at (0, -0.15) with its ring axis at yaw -pi/2 (D0),
-    or at x in [-0.1, 0.15], y in [-0.2, -0.1], yaw in [-5pi/6, -pi/6] (D1).
+    The arm at its home pose, gripper open. The needle lies on the table; its position is that of its centre
+    (the middle of its 16 cm length), its yaw that of its tip direction; the tripod's yaw is that of its ring
+    axis. MimicGen's Threading_D0 / D1 / D2 ranges (yaws converted to these axes, see ``NEEDLE_YAW`` and
+    ``TRIPOD_YAW``):
+
+    | variant | needle x | needle y | needle yaw | tripod x | tripod y | tripod yaw |
+    |---|---|---|---|---|---|---|
+    | `"D0"` | [-0.2, -0.05] | [0.15, 0.25] | [-7pi/6, -5pi/6] | 0 | -0.15 | -pi/2 |
+    | `"D1"` | [-0.2, 0.05] | [0.15, 0.25] | [-5pi/3, -pi/3] | [-0.1, 0.15] | [-0.2, -0.1] | [-5pi/6, -pi/6] |
+    | `"D2"` | [-0.2, 0.05] | [-0.25, -0.15] | [-5pi/3, -pi/3] | [-0.1, 0.15] | [0.1, 0.2] | [pi/6, 5pi/6] |
+
+    The needle's tip points towards the robot (D0) or anywhere within 120 degrees of that (D1, D2). D2 is D1
+    mirrored left / right: needle and tripod swap sides, the ring axis turns with them (it still points away
+    from the needle's side), and the needle's yaw range, symmetric under the mirror, is kept.
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (400).
 
     ## Version history
     * v0: initial release.
+    * v0, issue 13: variant D2 (MimicGen's Threading_D2); D0 and D1 unchanged.
     """
 
+    variants = ("D0", "D1", "D2")
     entity_names = ("needle", "tripod")
     task_description = "Pick up the needle by its handle and thread its tip through the ring of the tripod."
 

@@ -51,6 +51,11 @@ RANGE = 0.22
 """Pieces (and in D1 the base) are placed with x, y uniform in +-0.22 m, as in MimicGen."""
 PIECE_YAW = np.pi / 2
 """Both pieces start with yaw pi/2 and the base with yaw 0, as in MimicGen D0 and D1."""
+BASE_YAW = {"D0": (0.0, 0.0), "D1": (0.0, 0.0), "D2": (-np.pi / 4, np.pi / 4)}
+PIECE_YAWS = {"D0": (PIECE_YAW, PIECE_YAW), "D1": (PIECE_YAW, PIECE_YAW), "D2": (0.0, np.pi)}
+"""Yaw ranges of the base and of both pieces per variant (MimicGen's). In D2 the base turns by up to 45
+degrees either way and the pieces by up to 90 degrees about pi/2: with the square socket's quarter-turn and
+the pieces' half-turn symmetry, every heading of every object is possible."""
 CLEARANCE = 0.01
 """Extra gap (m) between the footprints of the objects at reset."""
 REACH = 0.77
@@ -132,19 +137,30 @@ class ThreePieceAssemblyEnv(ManipulationEnv):
     held.
 
     ## Starting state
-    The arm at its home pose, gripper open. The base is a static fixture with yaw 0, at the table centre
-    (0, 0) (`variant="D0"`) or with x, y uniform in +-0.22 m (`variant="D1"`). Both pieces lie on the table
-    with yaw pi/2, x and y uniform in +-0.22 m, not overlapping each other or the base (MimicGen's D0 / D1
-    ranges). Every object's centre is at most 0.77 m from the robot base (this cuts the far corners of the
-    square, out of the arm's reach at transit height).
+    The arm at its home pose, gripper open. MimicGen's ThreePieceAssembly_D0 / D1 / D2 ranges:
+
+    | variant | base x, y | base yaw | pieces x, y | pieces yaw |
+    |---|---|---|---|---|
+    | `"D0"` | (0, 0) | 0 | +-0.22 m | pi/2 |
+    | `"D1"` | +-0.22 m | 0 | +-0.22 m | pi/2 |
+    | `"D2"` | +-0.22 m | [-pi/4, pi/4] | +-0.22 m | [0, pi] (pi/2 +- pi/2) |
+
+    The base is a static fixture moved at reset; the pieces lie on the table, not overlapping each other or
+    the base, each piece's yaw drawn on its own. With the socket's quarter-turn symmetry and the pieces'
+    half-turn symmetry, D2 covers every heading of every object: piece 1 has to be turned to the base (by
+    up to 45 degrees) and piece 2 to piece 1 (by up to 90 degrees). One difference from MimicGen: every
+    object's centre is at most 0.77 m from the robot base, which cuts the far corners of the square; there the
+    arm cannot hold a carried piece at transit height (MimicGen's robot stands on a mount).
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (500).
 
     ## Version history
     * v0: initial release.
+    * v0, issue 13: variant D2 (MimicGen's ThreePieceAssembly_D2); D0 and D1 unchanged.
     """
 
+    variants = ("D0", "D1", "D2")
     entity_names = ("base", "piece_1", "piece_2")
     task_description = "Insert the red piece into the base, then put the blue piece on top of the red piece."
 
@@ -202,15 +218,16 @@ class ThreePieceAssemblyEnv(ManipulationEnv):
         base_r = BASE_HALF * np.sqrt(2) + CLEARANCE
         r1 = SLAB_HALF * np.sqrt(2) + CLEARANCE
         r2 = PIECE2_HALF * np.sqrt(2) + CLEARANCE
-        region = square(RANGE, yaw=(PIECE_YAW, PIECE_YAW))
+        region = square(RANGE, yaw=PIECE_YAWS[self.variant])
         if self.variant == "D0":
-            base_xy = np.array(BASE_D0)
+            base_xy, base_yaw = np.array(BASE_D0), 0.0
             placed = sample_reachable(rng, [region, region], [r1, r2], fixed=[(base_xy, base_r)])
         else:
-            (base_xy, _), *placed = sample_reachable(rng, [square(RANGE, yaw=(0.0, 0.0)), region, region],
-                                                     [base_r, r1, r2])
+            base_region = square(RANGE, yaw=BASE_YAW[self.variant])
+            regions = [base_region, region, region]
+            (base_xy, base_yaw), *placed = sample_reachable(rng, regions, [base_r, r1, r2])
         self.model.body_pos[self.base_id] = (base_xy[0], base_xy[1], TABLE_TOP)
-        self.model.body_quat[self.base_id] = (1.0, 0.0, 0.0, 0.0)
+        self.model.body_quat[self.base_id] = yaw_quat(base_yaw)
         for name, (xy, piece_yaw) in zip(("piece_1", "piece_2"), placed, strict=True):
             self.set_free_pose(f"{name}_joint", np.array([xy[0], xy[1], TABLE_TOP]), yaw_quat(piece_yaw))
 

@@ -60,7 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("recipe", nargs="?", type=Path, help="a recipe file (datasets/*.toml)")
     parser.add_argument("--task", help="task name, e.g. StackThree (see `python -m gym_actionflow -h`)")
-    parser.add_argument("--variant", help="D0 / D1, or train / test for MugHanging (default: the first)")
+    parser.add_argument(
+        "--variant", help="D0 / D1 / D2, or train / test / scene_moved for MugHanging (default: the first)"
+    )
     parser.add_argument("--episodes", type=int, help="successful episodes to keep")
     parser.add_argument("--seed", type=int, help="first seed (default 0)")
     parser.add_argument("--noise", type=float, help="expert noise (default 1)")

@@ -17,7 +17,8 @@ class Recipe:
     task: str
     """Task name (``StackThree``) or gym id (``gym_actionflow/StackThree-v0``)."""
     variant: str
-    """Initial-state distribution: D0/D1, or train/test for MugHanging."""
+    """Initial-state distribution: D0/D1/D2 (D2: ThreePieceAssembly, Coffee, Threading), or
+    train/test/scene_moved for MugHanging."""
     episodes: int
     """Successful episodes to keep."""
     repo_id: str
