@@ -32,15 +32,27 @@ EVAL_SEED = 100_000
 """First evaluation seed: far from the recording seeds (0, 1, ...), so every evaluated layout is new."""
 
 
-def _cli(name: str) -> str:
+def cli(name: str) -> str:
+    """The path of a console script of this environment (``lerobot-train``...), so that a command runs with
+    the interpreter running this one, whatever the ``PATH``."""
     return str(Path(sys.executable).parent / name)
 
 
-def run(cmd: list[str], **env_vars: str) -> None:
+def run(cmd: list[str], log: Path | None = None, **env_vars: str) -> None:
+    """Print ``cmd`` as a shell line a user can paste, then run it offline without wandb. With ``log``, its
+    output goes to that file (appended) instead of the console, and a failure raises with the log's tail."""
     prefix = "".join(f"{k}={v} " for k, v in env_vars.items())
-    print(f"\n$ {prefix}" + " ".join(cmd), flush=True)
+    print(f"\n$ {prefix}" + " ".join(cmd) + (f"   > {log}" if log else ""), flush=True)
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", **env_vars}
-    subprocess.run(cmd, check=True, env=env)
+    if log is None:
+        subprocess.run(cmd, check=True, env=env)
+        return
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with log.open("a") as out:
+        code = subprocess.run(cmd, env=env, stdout=out, stderr=subprocess.STDOUT).returncode
+    if code != 0:
+        tail = "".join(log.read_text(errors="replace").splitlines(keepends=True)[-30:])
+        raise RuntimeError(f"{Path(cmd[0]).name} exited with status {code}; the end of {log}:\n{tail}")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -74,7 +86,7 @@ def main(argv: list[str] | None = None) -> None:
 
     t = time.time()
     run([
-        _cli("actionflow-record"), "--task", args.task, "--variant", args.variant,
+        cli("actionflow-record"), "--task", args.task, "--variant", args.variant,
         "--episodes", str(args.episodes), "--seed", "0", "--noise", "1",
         "--repo-id", repo_id, "--root", str(dataset),
     ])  # fmt: skip
@@ -82,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
 
     t = time.time()
     run([
-        _cli("lerobot-train"), "--policy.type=actionflow", "--policy.device=cpu",
+        cli("lerobot-train"), "--policy.type=actionflow", "--policy.device=cpu",
         "--policy.push_to_hub=false",
         "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100",
         f"--policy.scheduler_decay_steps={args.steps}",
@@ -96,7 +108,7 @@ def main(argv: list[str] | None = None) -> None:
 
     t = time.time()
     run([
-        _cli("lerobot-eval"), f"--policy.path={ckpt}", "--policy.device=cpu",
+        cli("lerobot-eval"), f"--policy.path={ckpt}", "--policy.device=cpu",
         "--env.type=actionflow", f"--env.task={args.task}-v0", f"--env.variant={args.variant}",
         f"--eval.n_episodes={args.eval_episodes}", f"--eval.batch_size={min(args.eval_episodes, 10)}",
         "--eval.use_async_envs=false",
