@@ -58,6 +58,13 @@ MAX_JOINT_STEP = np.array([2.175] * 4 + [2.61] * 3) / CONTROL_HZ
 HOME_POS = np.array([-0.12, 0.0, 0.30])
 HOME_ROT = np.diag([1.0, -1.0, -1.0])
 """Start pose: TCP 30 cm above the table, fingers pointing down, closing along the world y axis."""
+CONTACT_SOLREF = (0.004, 1.0)
+CONTACT_SOLIMP = (0.95, 0.999, 0.001, 0.5, 2.0)
+"""Contact softness of every geom (unless a geom sets its own). MuJoCo's default (0.02 s time constant,
+impedance 0.9-0.95) lets a light object sink in proportion to the force on it: the arm pressing a 4 cm cube
+pushed it 4 cm into the table. A time constant of two physics steps (the stiffest stable one, as the finger
+pads') and impedance rising to 0.999 within 1 mm make the same press sink it about a millimetre, and resting
+objects a few micrometres (eval/results/envs_cpu.md). Impedance 0.99 let a pressed needle sink 4.8 mm."""
 POSITION_BOUND = 5.0
 SCALAR_BOUND = 10.0
 """Observation-space bounds: positions within 5 m of the table centre, task scalars within +-10."""
@@ -159,6 +166,9 @@ class ManipulationEnv(gym.Env):
         spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
         spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
         spec.option.impratio = 10.0
+        # Set before any geom is added, so the table, every task object and the robot inherit them.
+        spec.default.geom.solref = CONTACT_SOLREF
+        spec.default.geom.solimp = CONTACT_SOLIMP
         spec.visual.quality.offsamples = 0
         spec.visual.quality.shadowsize = 1024
         spec.visual.headlight.ambient = (0.35, 0.35, 0.35)
