@@ -1,10 +1,14 @@
-"""gym_actionflow benchmark: env steps/s (state only and with the wrist camera) and scripted-expert success.
+"""gym_actionflow benchmark: env steps/s (state only and with the wrist camera), scripted-expert success and
+how far objects sink under adversarial actions.
 
     python eval/bench_envs.py [--episodes 100] [--tasks StackThree Coffee] [--noise 0 1] [--workers 2]
 
 Speed: single process, one core (MuJoCo is single-threaded), expert rollouts, only ``env.step`` timed.
 Success: ``--episodes`` seeded episodes (seeds 0..N-1) per task x variant x expert noise, in ``--workers``
-processes. Prints the tables and writes them to eval/results/envs_cpu.md.
+processes. Penetration: the deepest object-table / object-object contact over ``--adversarial-seeds`` runs of
+300 adversarial steps (random poses, huge values, the hand pressed down on every object; see
+gym_actionflow.adversarial), and of objects at rest after a reset. Prints the tables and writes them to
+eval/results/envs_cpu.md.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import gym_actionflow  # noqa: E402
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
+from gym_actionflow.adversarial import resting_penetration, run_adversarial  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "envs_cpu.md"
@@ -73,6 +78,19 @@ def run_episode(args: tuple[str, str, float, int]) -> tuple[bool, int]:
     return episode.success, episode.steps
 
 
+def penetration(args: tuple[str, str, int]) -> tuple[float, float]:
+    """(worst penetration under adversarial actions, worst at rest) in metres over seeds 0..seeds-1."""
+    env_id, variant, seeds = args
+    env = gym.make(env_id, **gym_actionflow.find_task(env_id).kwargs(variant)).unwrapped
+    reports = [run_adversarial(env, seed=seed, steps=300) for seed in range(seeds)]
+    bad = [r for r in reports if not r.finite or r.warnings]
+    if bad:
+        raise RuntimeError(f"{env_id} {variant}: adversarial actions broke the simulation: {bad}")
+    rest = max(resting_penetration(env, seed=seed) for seed in range(seeds))
+    env.close()
+    return max(r.worst_penetration for r in reports), rest
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -83,6 +101,9 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="*", default=[t.name for t in gym_actionflow.TASKS])
     parser.add_argument("--noise", type=float, nargs="*", default=[0.0, 1.0], help="expert noise levels")
     parser.add_argument("--speed-steps", type=int, default=2000, help="timed env steps per task and obs mode")
+    parser.add_argument(
+        "--adversarial-seeds", type=int, default=10, help="adversarial runs (300 steps) per task x variant"
+    )
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args()
@@ -103,20 +124,29 @@ def main() -> None:
     jobs = [
         (tasks[n].env_id, v, noise) for n in args.tasks for v in tasks[n].variants for noise in args.noise
     ]
-    success_rows = []
+    success: dict[tuple[str, str], list[tuple[float, float]]] = {}
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         for env_id, variant, noise in tqdm(jobs, desc="experts"):
             results = list(pool.map(run_episode, [(env_id, variant, noise, s) for s in range(args.episodes)]))
             ok = [r[0] for r in results]
             lengths = [r[1] for r in results]
-            success_rows.append((env_id.split("/")[1][:-3], variant, noise, np.mean(ok), np.mean(lengths)))
+            success.setdefault((env_id, variant), []).append((np.mean(ok), np.mean(lengths)))
+        cells = list(success)
+        sinking = list(pool.map(penetration, [(env_id, v, args.adversarial_seeds) for env_id, v in cells]))
+    success_rows = [
+        (env_id.split("/")[1][:-3], variant, success[env_id, variant], adversarial, rest)
+        for (env_id, variant), (adversarial, rest) in zip(cells, sinking, strict=True)
+    ]
+    noises = " | ".join(f"success (noise {z:g})" for z in args.noise)
+    lengths = " | ".join(f"length (noise {z:g})" for z in args.noise)
 
     everything = args.tasks == [t.name for t in gym_actionflow.TASKS]
     tasks_arg = "" if everything else " --tasks " + " ".join(args.tasks)
     lines = [
         "# gym_actionflow benchmark (CPU)",
         "",
-        f"`python eval/bench_envs.py --episodes {args.episodes}{tasks_arg}` on "
+        f"`python eval/bench_envs.py --episodes {args.episodes}{tasks_arg}"
+        f" --adversarial-seeds {args.adversarial_seeds} --workers {args.workers}` on "
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores; speed in one process.",
         "",
         "| task | steps/s (state) | steps/s (state + wrist RGB) | wrist image | camera ms/step |",
@@ -135,11 +165,20 @@ def main() -> None:
             if cloud_rows
             else []
         ),
-        f"Scripted expert success over seeds 0..{args.episodes - 1}:",
+        f"Scripted expert success and mean episode length over seeds 0..{args.episodes - 1}; deepest "
+        f"object-table / object-object penetration over {args.adversarial_seeds} adversarial runs of 300 "
+        f"steps (seeds 0..{args.adversarial_seeds - 1}) and at rest after those resets:",
         "",
-        "| task | variant | noise | success | mean episode length |",
-        "|---|---|---|---|---|",
-        *(f"| {n} | {v} | {z:g} | {100 * s:.0f} % | {ln:.0f} |" for n, v, z, s, ln in success_rows),
+        f"| task | variant | {noises} | {lengths} | penetration, adversarial (mm) | at rest (mm) |",
+        "|---|---|" + "---|" * (2 * len(args.noise) + 2),
+        *(
+            f"| {n} | {v} | "
+            + " | ".join(f"{100 * s:.0f} %" for s, _ in cols)
+            + " | "
+            + " | ".join(f"{ln:.0f}" for _, ln in cols)
+            + f" | {1000 * adv:.2f} | {1000 * rest:.3f} |"
+            for n, v, cols, adv, rest in success_rows
+        ),
         "",
     ]
     text = "\n".join(lines)
