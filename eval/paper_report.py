@@ -1,0 +1,160 @@
+"""Tables and plots of the paper benchmark, rebuilt from the cells' JSON alone (``eval/paper.py report``).
+
+Per experiment and profile: ``<profile>_<experiment>.md`` (one table per task group, the profile's settings,
+the harness commands that made the cells and the one that made the file) and ``<profile>_<experiment>.png``:
+success vs demonstrations per task, success vs inference steps, or success on the training vs the test
+layout. Numbers are final-checkpoint success; several training seeds give their mean and spread; a profile
+that evaluates checkpoints during training adds a second table, the best of those evaluations, labelled.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+from collections import defaultdict
+from pathlib import Path
+
+TITLES = {
+    "sample-efficiency": "Sample efficiency: success vs demonstrations",
+    "inference-steps": "Inference steps: success vs integration / denoising steps",
+    "generalisation": "Generalisation: success on the training vs the test layout",
+}
+
+
+def load_cells(cells_dir: Path) -> list[dict]:
+    return [json.loads(p.read_text()) for p in sorted(cells_dir.glob("*.json"))]
+
+
+def series(cell: dict) -> str:
+    """What a table row / plot line is: the model, its evaluation setting, and its note (e.g. the UNet)."""
+    name = cell["model"]
+    if cell.get("schedule"):
+        name += f" {cell['schedule']}"
+    return f"{name} ({cell['note']})" if cell.get("note") else name
+
+
+def column(cell: dict, experiment: str) -> str:
+    if experiment == "sample-efficiency":
+        return f"{cell['demos']} demos"
+    if experiment == "inference-steps":
+        return f"K={cell['k']}"
+    return f"{cell['eval_variant']} layout" if cell["task"] == "MugHanging" else f"{cell['eval_variant']}"
+
+
+def aggregate(cells: list[dict], value: str = "success") -> dict:
+    """``{group: {series: {column: (mean, spread, seeds, episodes)}}}`` over training seeds."""
+    pooled: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
+    for c in cells:
+        v = c["success"] if value == "success" else c.get("best_of_periodic", {}).get("success")
+        if v is not None:
+            pooled[c["group"]][series(c)][column(c, c["experiment"])].append((v, c["n_episodes"]))
+    out: dict = {}
+    for group, rows in pooled.items():
+        out[group] = {}
+        for name, cols in rows.items():
+            out[group][name] = {}
+            for col, vals in cols.items():
+                rates = [v for v, _ in vals]
+                spread = statistics.pstdev(rates) if len(rates) > 1 else 0.0
+                out[group][name][col] = (statistics.fmean(rates), spread, len(rates), vals[0][1])
+    return out
+
+
+def _sort_key(col: str) -> tuple:
+    """Numeric columns by value (demos, K); layouts with the training layout first."""
+    digits = "".join(ch for ch in col if ch.isdigit())
+    return (0, int(digits)) if digits else (1, not col.startswith("train"), col)
+
+
+def markdown_table(rows: dict) -> str:
+    cols = sorted({c for r in rows.values() for c in r}, key=_sort_key)
+    lines = ["| model | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+    for name, r in rows.items():
+        cells = []
+        for c in cols:
+            if c not in r:
+                cells.append("")
+                continue
+            mean, spread, seeds, n = r[c]
+            text = f"{mean:.0%} of {n}"
+            cells.append(text + (f" (+-{spread:.0%}, {seeds} seeds)" if seeds > 1 else ""))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
+    try:
+        import matplotlib
+    except ModuleNotFoundError as err:
+        raise ModuleNotFoundError(
+            "the paper benchmark's plots need matplotlib: pip install matplotlib (or -e '.[test]')"
+        ) from err
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = list(table)
+    fig, axes = plt.subplots(1, len(groups), figsize=(4.2 * len(groups), 3.6), squeeze=False)
+    for ax, group in zip(axes[0], groups, strict=True):
+        rows = table[group]
+        if experiment == "generalisation":
+            cols = sorted({c for r in rows.values() for c in r}, key=_sort_key)
+            width = 0.8 / max(len(cols), 1)
+            for j, col in enumerate(cols):
+                xs = [i + j * width for i, r in enumerate(rows.values()) if col in r]
+                ys = [100 * r[col][0] for r in rows.values() if col in r]
+                ax.bar(xs, ys, width, label=col)
+            ax.set_xticks([i + width * (len(cols) - 1) / 2 for i in range(len(rows))])
+            ax.set_xticklabels([n.split(" (")[0] for n in rows], rotation=20, fontsize=8)
+        else:
+            for name, r in rows.items():
+                cols = sorted(r, key=_sort_key)
+                xs = [_sort_key(c)[1] for c in cols]
+                ax.errorbar(xs, [100 * r[c][0] for c in cols], yerr=[100 * r[c][1] for c in cols], marker="o",
+                            capsize=3, label=name)  # fmt: skip
+            ax.set_xscale("log")
+            ticks = sorted({_sort_key(c)[1] for r in rows.values() for c in r})
+            ax.set_xticks(ticks, [str(t) for t in ticks])
+            ax.minorticks_off()
+            ax.set_xlabel("demonstrations" if experiment == "sample-efficiency" else "inference steps K")
+        ax.set_title(group, fontsize=10)
+        ax.set_ylim(0, 105)
+        ax.set_ylabel("success (%)")
+        ax.legend(fontsize=7)
+    fig.text(0.01, 0.005, caption, fontsize=6, family="monospace")
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120, metadata={"Description": caption})
+    plt.close(fig)
+
+
+def write(results: Path, profile: str, experiment: str, report_command: str) -> tuple[Path, Path] | None:
+    """Rebuild the table and plot of one experiment from its cells; None when no cell has finished."""
+    cells = load_cells(results / "cells" / profile / experiment)
+    if not cells:
+        return None
+    table = aggregate(cells)
+    stem = results / f"{profile}_{experiment}"
+    made_by = sorted({c["harness_command"] for c in cells if c.get("harness_command")})
+    plot(experiment, table, stem.with_suffix(".png"), f"{profile} profile; made by: {report_command}")
+    first = next((c for c in cells if c.get("steps")), cells[0])  # a trained cell, not a replay
+    lines = [
+        f"# {TITLES[experiment]} ({profile} profile)", "",
+        f"This file and [{stem.name}.png]({stem.name}.png) were made by `{report_command}` from the "
+        f"{len(cells)} cells in [cells/{profile}/{experiment}/](cells/{profile}/{experiment}/) (each "
+        "cell's JSON holds its `actionflow-record`, `lerobot-train` and `lerobot-eval` commands and "
+        "timings). The cells were run by:", "", *[f"    {c}" for c in made_by], "",
+        f"Final-checkpoint success over {first['n_episodes']} evaluation episodes per cell, evaluation seeds "
+        "from "
+        f"{first['eval_seeds'][0] if first.get('eval_seeds') else 'n/a'} (no recorded seed is evaluated); "
+        f"training: {first['steps']} steps at batch {first['batch_size']} on `{first['device']}`.", "",
+    ]  # fmt: skip
+    for group, rows in table.items():
+        lines += [f"## {group}", "", markdown_table(rows), ""]
+    best = aggregate(cells, value="best")
+    if best:
+        lines += ["## Best of the periodic evaluations during training (the published protocols' number)", ""]
+        for group, rows in best.items():
+            lines += [f"### {group}", "", markdown_table(rows), ""]
+    lines += [f"![{TITLES[experiment]}]({stem.name}.png)", ""]
+    stem.with_suffix(".md").write_text("\n".join(lines))
+    return stem.with_suffix(".md"), stem.with_suffix(".png")

@@ -1,0 +1,125 @@
+"""The paper benchmark harness (eval/paper.py): one tiny cell of each experiment through the real
+actionflow-record, lerobot-train and lerobot-eval, the JSON, tables and plots it writes, resuming, and the
+rule that no evaluated layout was recorded."""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+
+import paper  # noqa: E402
+import paper_run  # noqa: E402
+from paper_commands import EVAL_SEED, check_disjoint, check_plan, eval_seeds  # noqa: E402
+from paper_plan import EXPERIMENTS, Dataset, Paths, build  # noqa: E402
+from paper_profiles import PROFILES, SMOKE  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory) -> tuple[Paths, dict[str, str]]:
+    """The smoke profile's three experiments, run once into a temporary work and results folder."""
+    root = tmp_path_factory.mktemp("paper")
+    paths = Paths(root / "work", root / "results")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("HF_LEROBOT_HOME", str(root / "hf_lerobot"))
+    mp.setenv("OMP_NUM_THREADS", "1")
+    logs = {}
+    try:
+        for experiment in EXPERIMENTS:
+            argv = [experiment, "--profile", "smoke", "--work-dir", str(paths.work), "--results-dir",
+                    str(paths.results)]  # fmt: skip
+            paper.main(argv)
+            logs[experiment] = " ".join(argv)
+    finally:
+        mp.undo()
+    return paths, logs
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_a_tiny_cell_of_each_experiment_writes_json_table_and_plot(smoke, experiment):
+    """Each experiment's cells ran the standard commands and left their JSON, the table and the plot, each
+    naming the command that made it."""
+    paths, argv = smoke
+    cells = [json.loads(p.read_text()) for p in paths.cells("smoke", experiment).glob("*.json")]
+    assert len(cells) == len(build(experiment, SMOKE)) > 0
+    for cell in cells:
+        assert 0.0 <= cell["success"] <= 1.0 and cell["n_episodes"] >= 1
+        assert cell["harness_command"].endswith(argv[experiment])
+        assert "actionflow-record" in cell["commands"]["record"]
+        if cell["model"].startswith("replay"):
+            assert "paper_replay.py" in cell["commands"]["replay"]
+            continue
+        assert "lerobot-train --policy.type=actionflow" in cell["commands"]["train"]
+        assert ".partial" not in cell["commands"]["train"]  # the command a user reruns: the final folder
+        assert (
+            "lerobot-eval" in cell["commands"]["eval"] and f"--seed={EVAL_SEED}" in cell["commands"]["eval"]
+        )
+        assert cell["eval_seeds"][0] > cell["record_seeds"][1]
+    table = (paths.results / f"smoke_{experiment}.md").read_text()
+    assert "python eval/paper.py report --profile smoke" in table and "| model |" in table
+    assert all(c["group"] in table for c in cells)
+    png = paths.results / f"smoke_{experiment}.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+    if experiment == "inference-steps":
+        assert any("--policy.num_inference_steps=1" in c["commands"]["eval"] for c in cells)
+        assert "K=1" in table
+    if experiment == "generalisation":
+        assert {c["eval_variant"] for c in cells if c["task"] == "MugHanging"} == {"train", "test"}
+        assert "--env.mug_yaw=slight" in next(c for c in cells if c["model"] == "A.1")["commands"]["eval"]
+        assert "replay 1.5 mm off" in table
+
+
+def test_a_finished_cell_is_never_run_again(smoke, monkeypatch, capsys):
+    """Rerunning an experiment whose cells have their JSON runs no command at all."""
+    paths, _ = smoke
+
+    def no_command(*args, **kwargs):
+        raise AssertionError(f"a finished cell ran a command: {args}")
+
+    monkeypatch.setattr(paper_run, "run", no_command)
+    paper.main(["sample-efficiency", "--profile", "smoke", "--work-dir", str(paths.work),
+                "--results-dir", str(paths.results)])  # fmt: skip
+    assert "0 cells run now, 1 already finished" in capsys.readouterr().out
+
+
+def test_an_interrupted_training_starts_again_from_nothing(tmp_path, monkeypatch):
+    """A training folder left by a killed lerobot-train (``.partial``) is deleted before the new run, and the
+    finished folder appears only when the trainer has returned."""
+    paths = Paths(tmp_path / "work", tmp_path / "results")
+    training = next(c.training for c in build("sample-efficiency", SMOKE))
+    partial = paths.train(training).with_name(paths.train(training).name + ".partial")
+    (partial / "checkpoints" / "000001").mkdir(parents=True)  # what the killed run left
+    seen = []
+
+    def fake_train(cmd, log=None, **env):
+        out = Path(next(a for a in cmd if a.startswith("--output_dir=")).split("=", 1)[1])
+        seen.append(out.exists())  # the stale folder must be gone before lerobot-train starts
+        (out / "checkpoints" / "000002" / "pretrained_model").mkdir(parents=True)
+        assert not paths.train(training).exists()
+
+    monkeypatch.setattr(paper_run, "run", fake_train)
+    info = paper_run.train(training, paths)
+    assert seen == [False] and not partial.exists()
+    assert list(paper_run.checkpoints(paths.train(training))) == [2]
+    assert paper_run.train(training, paths) == info and len(seen) == 1  # finished: not trained again
+
+
+def test_evaluation_seeds_never_overlap_recording_seeds():
+    """Every profile's plan keeps the evaluated layouts (lerobot-eval --seed=100000, whole batches) apart
+    from any seed its recordings may try; an overlap is a clear error before anything runs."""
+    for profile in PROFILES.values():
+        for experiment in EXPERIMENTS:
+            check_plan(build(experiment, profile))
+    assert eval_seeds(50, 10) == range(EVAL_SEED, EVAL_SEED + 50)
+    assert eval_seeds(5, 10) == range(EVAL_SEED, EVAL_SEED + 10)  # the last batch's extra envs count
+    with pytest.raises(ValueError, match=r"seeds \[100000, 100001\] are both recorded and evaluated"):
+        check_disjoint([7, 100_000, 100_001], eval_seeds(2, 2), "cell")
+    cell = build("sample-efficiency", SMOKE)[0]
+    late = Dataset("Stack", "D0", 2, seed=EVAL_SEED - 3)
+    with pytest.raises(ValueError, match="record from a lower --seed"):
+        check_plan([replace(cell, dataset=late)])
