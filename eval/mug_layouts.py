@@ -1,0 +1,84 @@
+"""How far from its demonstrations a MugHanging policy generalises: success by where the mug starts relative
+to the hanger, for cells of ``eval/ablate.py``'s results file.
+
+    python eval/mug_layouts.py --cells panda_physics via_slight --variants test scene_moved
+
+Every layout is rebuilt from its evaluation seed (``env.reset(seed)`` places mug and hanger; no policy is
+run), and the cell's ``failed_seeds`` say which ones failed. The mug's start is expressed in the hanger
+frame (x along the peg's heading, y sideways): the ``train`` demonstrations all start with the mug 0.22-0.34 m
+out along the peg's line and at most 4.5 cm to its side. An SE(3)-equivariant policy sees only these relative
+poses (plus the gripper's), so ``test`` layouts are new to it exactly by how far the mug sits off that line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gym_actionflow  # noqa: E402, F401
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results" / "ablate_MugHanging.jsonl"
+EVAL_SEED = 100_000
+SIDE_BINS = (0.0, 0.1, 0.2, 0.25, 0.4)
+"""Bins of the mug's sideways distance from the peg's line (m)."""
+
+
+def mug_in_hanger_frame(variant: str, seeds: range, env_kwargs: dict) -> np.ndarray:
+    """(len(seeds), 2) the mug's start in the hanger frame (x along the peg's heading, y sideways)."""
+    env = gym.make("gym_actionflow/MugHanging-v0", variant=variant, **env_kwargs)
+    sim = env.unwrapped
+    out = []
+    for seed in seeds:
+        env.reset(seed=seed)
+        h_pos, h_rot = sim.body_pose(sim.hanger_id)
+        m_pos, _ = sim.body_pose(sim.mug_id)
+        out.append((h_rot.T @ (m_pos - h_pos))[:2])
+    env.close()
+    return np.array(out)
+
+
+def rows_by_side(cell: dict, variant: str) -> list[tuple[str, int, int]]:
+    """(bin label, successes, episodes) per bin of sideways distance, in a cell's ``variant`` evaluation."""
+    result = cell["eval"][variant]
+    seeds = range(EVAL_SEED, EVAL_SEED + result["n"])
+    failed = set(result["failed_seeds"])
+    side = np.abs(mug_in_hanger_frame(variant, seeds, cell.get("env_kwargs", {}))[:, 1])
+    rows = []
+    for low, high in zip(SIDE_BINS[:-1], SIDE_BINS[1:], strict=True):
+        members = [s for s, d in zip(seeds, side, strict=True) if low <= d < high]
+        if members:
+            rows.append((f"{low:.2f}-{high:.2f} m", sum(s not in failed for s in members), len(members)))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--results", type=Path, default=RESULTS)
+    p.add_argument("--cells", nargs="+", required=True, help="cell names in the results file")
+    p.add_argument("--variants", nargs="+", default=["test"])
+    args = p.parse_args(argv)
+    cells = {}
+    for line in args.results.read_text().splitlines():
+        row = json.loads(line)
+        cells[row["name"]] = row  # a later row of the same name wins
+    missing = [name for name in args.cells if name not in cells]
+    if missing:
+        raise SystemExit(f"cells {missing} are not in {args.results}; it has {sorted(cells)}")
+    print("| cell | layouts | mug's distance from the peg's line | success |")
+    print("|---|---|---|---|")
+    for name in args.cells:
+        for variant in args.variants:
+            if variant not in cells[name]["eval"]:
+                continue
+            for label, ok, n in rows_by_side(cells[name], variant):
+                print(f"| {name} | {variant} | {label} | {ok} of {n} ({100 * ok / n:.0f} %) |")
+
+
+if __name__ == "__main__":
+    main()
