@@ -98,7 +98,11 @@ def checkpoints(train_dir: Path) -> dict[int, Path]:
 
 def _evaluate(cell: Cell, paths: Paths) -> dict:
     """Every saved checkpoint of the cell's training through ``lerobot-eval``: the last is the reported
-    number; with several, the best of them is added (the published protocols' best-of-evaluations)."""
+    number; with several, the best of them is added (the published protocols' best-of-evaluations).
+
+    The checkpoints are evaluated after training rather than by ``lerobot-train --env_eval_freq``: LeRobot's
+    evaluation during training seeds its envs from the training ``--seed`` (1, 2, 3...), which are seeds the
+    recordings used, so its layouts would be training layouts."""
     assert cell.training is not None
     train_info = train(cell.training, paths)
     out = paths.eval(cell)
