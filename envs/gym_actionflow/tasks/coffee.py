@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from gym_actionflow.base import TABLE_TOP, ManipulationEnv
+from gym_actionflow.base import CONTACT_SOLREF, TABLE_TOP, ManipulationEnv
 from gym_actionflow.geometry import yaw_matrix, yaw_quat
 from gym_actionflow.placement import Region
 
@@ -44,6 +44,10 @@ LID_CLOSED_MAX = np.deg2rad(15.0)
 """Success needs the lid angle below 15 degrees (MimicGen's hinge tolerance)."""
 LID_DAMPING = 0.005
 """Hinge damping (N m s / rad), MimicGen's value."""
+LID_LIMIT_SOLREF = CONTACT_SOLREF
+"""Softness of the hinge's joint limit, which holds the closed lid above the rim: as stiff as the contacts.
+MuJoCo's default (0.02 s) let the arm press the closed lid 4.7 mm into the holder rim under the adversarial
+sequence (Coffee D0, seed 8); with this, under 1 mm (eval/results/envs_cpu.md)."""
 BODY_HALF = (0.085, 0.085, 0.5 * (HINGE_Z - 0.010 + HOLDER_FLOOR_Z))
 BODY_FRONT_Y = -0.05
 """The machine housing: a 17 x 17 cm box behind the holder, its top 1 cm below the hinge so the open lid
@@ -96,7 +100,8 @@ def _add_machine(spec: mujoco.MjSpec) -> None:
                          friction=friction)
     lid = machine.add_body(name="lid", pos=(0.0, HINGE_Y, HINGE_Z))
     lid.add_joint(name="lid_hinge", type=mujoco.mjtJoint.mjJNT_HINGE, axis=(1, 0, 0), range=(0.0, LID_OPEN),
-                  limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=LID_DAMPING, armature=1e-4)
+                  limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=LID_DAMPING, armature=1e-4,
+                  solref_limit=LID_LIMIT_SOLREF)
     lid.add_geom(name="lid_plate", type=box, size=LID_HALF, pos=(0.0, LID_HALF[1], 0.0), rgba=silver,
                  density=500.0, friction=friction)
     # Visual: a knob on top of the lid.
@@ -158,6 +163,8 @@ class CoffeeEnv(ManipulationEnv):
     ## Version history
     * v0: initial release.
     * v0, issue 13: variant D2 (MimicGen's Coffee_D2); D0 and D1 unchanged.
+    * v0, issue 13: the lid hinge's joint limit as stiff as the contacts (``LID_LIMIT_SOLREF``), so the
+      arm cannot press the closed lid into the holder rim.
     """
 
     variants = ("D0", "D1", "D2")
