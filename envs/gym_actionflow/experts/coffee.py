@@ -32,6 +32,10 @@ SWEEP_START = np.deg2rad(155.0)
 SWEEP_END = np.deg2rad(20.0)
 """The closed fingers sweep an arc around the hinge axis (radius, start and end angle from the holder's +y
 axis), from behind the open lid over the top: they push the lid past vertical and down onto the holder."""
+APPROACH_LIFT = 0.08
+"""The fingers come down onto the sweep's start from this far above it, after rising straight up from the
+holder: the open lid's free edge stands about 13 cm above the holder floor, in the straight path from the
+holder to the sweep, and its stop (a joint limit as stiff as the contacts) does not let it swing away."""
 
 
 class CoffeeExpert(ScriptedExpert):
@@ -95,7 +99,9 @@ class CoffeeExpert(ScriptedExpert):
 
         start = arc(SWEEP_START)
         self.grip = CLOSE
-        yield from self.move_to(start + [0, 0, 0.06], rot)
+        approach = start + [0, 0, APPROACH_LIFT]
+        yield from self.move_to(np.array([*self.cmd_pos[:2], approach[2]]), rot)
+        yield from self.move_to(approach, rot)
         yield from self.move_to(start, rot, speed=0.015)
         n = 24
         for k in range(1, n + 1):
