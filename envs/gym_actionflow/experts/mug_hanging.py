@@ -7,10 +7,11 @@ simulator (``env.unwrapped``): it is a demonstrator, and the recorded observatio
 Without an observation (``act()``) everything is read from the simulator.
 
 The mug is grasped top-down around its body, 1.7 cm below the rim, the fingers closing across it (along the
-mug's y axis, clear of the handle): with the position-servo fingers a rim grasp (one pad inside, one
-outside the 4 mm wall) squeezes with under 1 N, while the 6.4 cm body gets about 10 N per finger. The mug is
+mug's y axis, clear of the handle): around the 6.4 cm body the fingers squeeze with the hand's full force,
+which a rim grasp (one pad inside, one outside the 4 mm wall) would not get. The mug is
 carried upright, turned (the short way: the side of the peg the mug's body ends up on follows from how it
-sits in the hand) so that the handle's opening faces along the peg, brought 5 cm beyond the peg's tip
+sits in the hand) so that the handle's opening faces along the peg, carried through a random point beside the
+straight line (``VIA_SPREAD``, scaled by ``noise``), brought 5 cm beyond the peg's tip
 on its axis, slid down the peg to 7 cm from the pole axis, lowered 1 cm and released; the hand then lifts.
 
 ``noise`` scales the waypoint offsets (grasp point, the insertion line across the peg, the seat along it)
@@ -51,6 +52,11 @@ DROP = 0.010
 """The mug is lowered by 1 cm before release, so its handle drops only ~4 mm onto the peg."""
 LIFT = 0.06
 """The mug is brought over the insertion start from this height above it."""
+VIA_SPREAD = 0.15
+"""At ``noise=1``: the carry to the peg passes a point up to this far (m, uniform) to either side of the
+straight line (``via_point``). The demonstrations then show the peg from many directions, which is what lets
+a policy trained with the hanger at one pose find it where a moved hanger puts it (measured in
+``eval/results/ablate.md``: ``via_slight`` against ``panda_physics``)."""
 PRECISE_JITTER = 0.3
 """Share of the per-step jitter kept in the precise phases: the descent around the mug (8 mm clearance per
 side) and the slide of the handle onto the peg (~6 mm clearance)."""
@@ -144,7 +150,9 @@ class MugHangingExpert(ScriptedExpert):
             """TCP pose that puts the centre of the handle's opening at ``hole``."""
             return tcp_for_object(hole - mug_rot @ HOLE_CENTER, mug_rot, grasp)
 
-        yield from self.move_to(*tcp_at(pre + [0, 0, LIFT], rel))
+        above = pre + [0, 0, LIFT]
+        yield from self.move_to(*tcp_at(self.via_point(above, h_rot[:, 0]), rel))
+        yield from self.move_to(*tcp_at(above, rel))
         yield from self.move_to(*tcp_at(pre, rel), speed=0.01)
         # The mug may have shifted in the hand: re-measure before threading the handle onto the peg.
         rel = self.in_hand()
@@ -155,6 +163,18 @@ class MugHangingExpert(ScriptedExpert):
         yield from self.set_gripper(OPEN, steps=8)
         yield from self.move_to(self.cmd_pos + [0, 0, 0.08], self.cmd_rot, speed=0.01)
         self.jitter_scale = 1.0
+
+    def via_point(self, above: np.ndarray, heading: np.ndarray) -> np.ndarray:
+        """Where the handle's opening passes between the lift and ``above`` the insertion start: halfway,
+        pushed sideways (horizontally, across the peg's heading) by up to ``VIA_SPREAD * noise``, no lower
+        than ``above``. With the hanger always at one pose, a straight carry would only ever show the peg
+        straight ahead; these carries show it from the sides as well."""
+        mug_pos, mug_rot = self.mug()
+        side = np.cross([0.0, 0.0, 1.0], heading)
+        spread = VIA_SPREAD * self.noise
+        via = 0.5 * (mug_pos + mug_rot @ HOLE_CENTER + above) + side * self.rng.uniform(-spread, spread)
+        via[2] = max(via[2], above[2])
+        return via
 
     def mug_height(self) -> float:
         return float(self.mug()[0][2] - TABLE_TOP)
