@@ -18,9 +18,10 @@ from lerobot_actionflow.tools.record import LOG_NAME, Recipe, record
 from lerobot_actionflow.tools.record.journal import JOURNAL
 from lerobot_actionflow.tools.record.simulate import episodes, make_env, simulate
 
-# Expert noise 3 makes Stack fail on seed 1 (and 8): failures must be logged in order whatever the workers.
-RECIPE = Recipe(task="Stack", variant="D0", episodes=5, repo_id="local/dur", noise=3.0)
-KEPT, FAILED = [0, 2, 3, 4, 5], [1]
+# Expert noise 3 makes Stack fail on seed 8 (on the Panda-like physics of f2f1b96): failures must be logged in
+# order whatever the workers.
+RECIPE = Recipe(task="Stack", variant="D0", episodes=9, repo_id="local/dur", noise=3.0)
+KEPT, FAILED = [0, 1, 2, 3, 4, 5, 6, 7, 9], [8]
 EVERY = 2  # checkpoint every 2 episodes: 5 episodes cross two checkpoints and end between them
 
 
@@ -178,7 +179,7 @@ def test_a_killed_parallel_recording_resumes_to_the_same_dataset(reference, tmp_
     the recording that was never interrupted."""
     root = _kill_at(tmp_path, "save_episode", 3, workers=2)
     log = json.loads((root / "meta" / LOG_NAME).read_text())
-    assert log["kept_seeds"] == KEPT[:3] and log["failed_seeds"] == FAILED
+    assert log["kept_seeds"] == KEPT[:3] and log["failed_seeds"] == [s for s in FAILED if s < KEPT[2]]
     assert sorted(p.name for p in (root / "meta" / JOURNAL).iterdir()) == [f"{KEPT[2]}.npz"]
     unfinalized = root / "data" / "chunk-000" / "file-001.parquet"
     assert unfinalized.is_file() and unfinalized.read_bytes()[-4:] != b"PAR1"
