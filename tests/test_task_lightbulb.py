@@ -62,7 +62,9 @@ def test_reset_starts_with_the_bulb_held_and_the_layout_in_range():
 
 def test_bulb_stays_firmly_held_through_a_67_degree_turn():
     """The grasp is firm: turning the hand 67 degrees in the air (as fast as the expert's turn) and moving it
-    leaves the bulb within 0.5 mm and 1.5 degrees of its in-hand pose."""
+    leaves the bulb within 1 mm and 1.5 degrees of its in-hand pose. (With the Panda-like physics of f2f1b96,
+    70 N fingers and stiff contacts, it shifts 0.71 mm and 0.98 degrees; the old soft contacts kept it under
+    0.5 mm. A loose grasp slips by centimetres.)"""
     env = make_env().unwrapped
     env.reset(seed=0)
     pos, rot = env.tcp_pose()
@@ -72,7 +74,7 @@ def test_bulb_stays_firmly_held_through_a_67_degree_turn():
         target = rot @ axis_angle_matrix(np.array([0.0, 0.0, -LOCK_ANGLE * s]))
         env.step(np.concatenate([pose9(pos + [0.0, 0.05 * s, -0.08 * s], target), [1.0]]))
     after = object_in_tcp(env, env.bulb_id)
-    assert np.linalg.norm(after[0] - before[0]) < 5e-4
+    assert np.linalg.norm(after[0] - before[0]) < 1e-3
     assert rotation_angle(after[1], before[1]) < np.deg2rad(1.5)
 
 
