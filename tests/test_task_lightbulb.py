@@ -64,7 +64,7 @@ def test_bulb_stays_firmly_held_through_a_67_degree_turn():
     """The grasp is firm: turning the hand 67 degrees in the air (as fast as the expert's turn) and moving it
     leaves the bulb within 1 mm and 1.5 degrees of its in-hand pose. (With the Panda-like physics of f2f1b96,
     70 N fingers and stiff contacts, it shifts 0.71 mm and 0.98 degrees; the old soft contacts kept it under
-    0.5 mm. A loose grasp slips by centimetres.)"""
+    0.5 mm.)"""
     env = make_env().unwrapped
     env.reset(seed=0)
     pos, rot = env.tcp_pose()
