@@ -33,6 +33,8 @@ from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, schema
 RUNTIME_FIELDS = ("n_action_steps", "num_inference_steps", "time_schedule", "time_schedule_rate",
                   "action_smoothing")
 """Config fields read at every call, which an evaluation of a trained policy may change."""
+STREAM_BUFFER = 1000
+"""Shuffle buffer of LeRobot's ``StreamingLeRobotDataset`` (its default, which ``lerobot-train`` keeps)."""
 EVAL_SEED = 100_000
 """First evaluation seed, as the main job's ``lerobot-eval --seed=100000``: never a recording seed."""
 
@@ -126,6 +128,24 @@ class Batches:
         return self.at(torch.randint(self.size, (batch_size,), generator=gen))
 
 
+def stream_order(size: int, buffer_size: int, gen: torch.Generator):
+    """Frame indices in the order LeRobot's ``StreamingLeRobotDataset`` yields one shard: frames are read in
+    file order into a ``buffer_size`` buffer, and each read swaps out a uniformly chosen buffered frame; at
+    the end of an epoch the rest of the buffer is shuffled. ``--loader stream`` trains on this order, to
+    measure what the streaming loader's local shuffle costs against uniform sampling."""
+    while True:
+        buffer: list[int] = []
+        for i in range(size):
+            if len(buffer) == buffer_size:
+                j = int(torch.randint(buffer_size, (1,), generator=gen))
+                yield buffer[j]
+                buffer[j] = i
+            else:
+                buffer.append(i)
+        for j in torch.randperm(len(buffer), generator=gen).tolist():
+            yield buffer[j]
+
+
 # ---------------------------------------------------------------------------- policy
 def make_policy(data: dict, overrides: dict) -> ActionFlowPolicy:
     """ActionFlow with its config defaults and ``overrides``, for the recorded observation keys."""
@@ -148,7 +168,8 @@ def lr_at(step: int, cfg: ActionFlowConfig, total: int) -> float:
     return cfg.scheduler_decay_lr + (cfg.optimizer_lr - cfg.scheduler_decay_lr) * cos
 
 
-def train(policy: ActionFlowPolicy, batches: Batches, steps: int, batch_size: int, seed: int) -> list[float]:
+def train(policy: ActionFlowPolicy, batches: Batches, steps: int, batch_size: int, seed: int,
+          loader: str = "uniform") -> list[float]:
     cfg = policy.config
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
@@ -156,11 +177,16 @@ def train(policy: ActionFlowPolicy, batches: Batches, steps: int, batch_size: in
                             eps=cfg.optimizer_eps, weight_decay=cfg.optimizer_weight_decay)
     policy.train()
     losses = []
+    order = stream_order(batches.size, STREAM_BUFFER, gen) if loader == "stream" else None
     bar = tqdm(range(steps), desc="training", mininterval=5)
     for step in bar:
         for group in opt.param_groups:
             group["lr"] = lr_at(step, cfg, steps)
-        loss, _ = policy.forward(batches.sample(batch_size, gen))
+        if order is None:
+            batch = batches.sample(batch_size, gen)
+        else:
+            batch = batches.at(torch.tensor([next(order) for _ in range(batch_size)]))
+        loss, _ = policy.forward(batch)
         opt.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.optimizer_grad_clip_norm)
@@ -262,6 +288,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--steps", type=int, default=3000)
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--loader", choices=("uniform", "stream"), default="uniform",
+                   help="uniform: frames drawn with replacement (a map-style loader's shuffle); stream: the "
+                   "order of LeRobot's streaming dataset over one file (a 1000-frame shuffle buffer)")
     p.add_argument("--eval-variants", nargs="+", default=None)
     p.add_argument("--eval-episodes", type=int, default=50)
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE")
@@ -287,11 +316,11 @@ def main(argv: list[str] | None = None) -> None:
     results = args.results or Path(f"eval/results/ablate_{args.task}.jsonl")
     key = dict(name=name, task=args.task, variant=args.variant, episodes=args.episodes, steps=args.steps,
                batch_size=args.batch_size, seed=args.seed, overrides=overrides, env_kwargs=env_kwargs,
-               checkpoint=str(args.checkpoint) if args.checkpoint else None)
+               checkpoint=str(args.checkpoint) if args.checkpoint else None, loader=args.loader)
     if results.exists():
         for line in results.read_text().splitlines():
             row = json.loads(line)
-            if {k: row.get(k) for k in key} == key:
+            if {k: row.get(k, "uniform" if k == "loader" else None) for k in key} == key:
                 print(f"already done: {json.dumps(row)}")
                 return
 
@@ -311,7 +340,7 @@ def main(argv: list[str] | None = None) -> None:
         policy = make_policy(data, overrides)
         batches = Batches(data, policy.config.n_obs_steps, policy.config.horizon)
         t0 = time.time()
-        losses = train(policy, batches, args.steps, args.batch_size, args.seed)
+        losses = train(policy, batches, args.steps, args.batch_size, args.seed, args.loader)
         train_s = time.time() - t0
         frames, final_loss = batches.size, float(np.mean(losses[-200:]))
         if args.save:
