@@ -9,6 +9,7 @@ import json
 import logging
 import time
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -18,6 +19,8 @@ from torch import Tensor
 
 from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
 from lerobot_actionflow.core import geometry as g
+from lerobot_actionflow.core.adaptation import EEFFrame
+from lerobot_actionflow.core.flow import euler_states, time_grid
 from lerobot_actionflow.core.model import ActionFlowModel
 from lerobot_actionflow.schema import ACTION, ACTION_DIM, POSE_DIM, POSE_LAYOUT, TOKEN_FEATURES, TOKEN_POSES
 
@@ -45,12 +48,28 @@ def saved_config_keys(pretrained_name_or_path: str | Path, **hub_kwargs) -> set[
         return None
 
 
+@dataclass
+class FlowTrajectory:
+    """Every state of the sampler for one chunk, world frame: what the ``K`` Euler steps do to the noise.
+
+    ``times [K + 1]``: flow times ``t_0 = 0`` (the noise) < ... < ``t_K = 1`` (the chunk).
+    ``actions [K + 1, B, horizon, 10]``: each state as actions (target EEF pose + gripper command, clamped to
+    [-1, 1] as in the chunk); ``actions[-1]`` is the chunk that ``predict_action_chunk`` returns.
+    """
+
+    times: Tensor
+    actions: Tensor
+
+
 class ActionFlowPolicy(PreTrainedPolicy):
     """ActionFlow (Funk et al.): equivariant, accurate and fast policies with SE(3) flow matching."""
 
     config_class = ActionFlowConfig
     name = "actionflow"
     _clock = staticmethod(time.perf_counter)  # seconds; replaceable in tests
+    record_flow = False
+    """True: ``select_action`` keeps every Euler step of each new chunk in ``last_flow`` (for visualisation);
+    the chunk is the same either way."""
 
     def __init__(self, config: ActionFlowConfig, **kwargs):
         super().__init__(config)
@@ -89,6 +108,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
         self._obs_queues = {k: deque(maxlen=self.config.n_obs_steps) for k in self.observation_keys}
         self._action_queue: deque[Tensor] = deque(maxlen=self.config.n_action_steps)
         self.last_chunk: Tensor | None = None
+        self.last_flow: FlowTrajectory | None = None
         self._last_action: Tensor | None = None
 
     # ------------------------------------------------------------------ inputs
@@ -176,6 +196,29 @@ class ActionFlowPolicy(PreTrainedPolicy):
         return self.model.sample(self._check_and_stack(batch), noise)
 
     @torch.no_grad()
+    def sample_trajectory(self, batch: dict[str, Tensor], noise=None) -> FlowTrajectory:
+        """:meth:`predict_action_chunk` with every intermediate state kept (see :class:`FlowTrajectory`).
+
+        The same computation in the same order as ``ActionFlowModel.sample`` (encode, draw the noise, the
+        Euler steps of :func:`~lerobot_actionflow.core.flow.euler_states`), so that under the same seed
+        ``actions[-1]`` is bit-for-bit the chunk ``predict_action_chunk`` samples (tested).
+        """
+        obs = self._check_and_stack(batch)
+        model = self.model
+        frame, scene = model.encode(obs)
+        b, device = obs[TOKEN_POSES].shape[0], obs[TOKEN_POSES].device
+        x = noise if noise is not None else model.flow.noise(b, self.config.horizon, device=device)
+        grid = time_grid(
+            self.config.num_inference_steps,
+            self.config.time_schedule,
+            self.config.time_schedule_rate,
+            device=device,
+        )
+        states = euler_states(model.flow, lambda state, t: model.velocity(scene, state, t), x, grid)
+        actions = [_world_actions(model, frame, state) for state in states]  # K + 1 x [B, H, 10]
+        return FlowTrajectory(times=grid, actions=torch.stack(actions))
+
+    @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """One action ``[B, 10]`` per call: a new chunk is sampled every ``n_action_steps`` calls."""
         for key in self.observation_keys:
@@ -188,11 +231,19 @@ class ActionFlowPolicy(PreTrainedPolicy):
         if not self._action_queue:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._obs_queues.items()}
             start = self._clock()
-            chunk = self.predict_action_chunk(history)
+            if self.record_flow:
+                self.last_flow = self.sample_trajectory(history)
+                chunk = self.last_flow.actions[-1]
+            else:
+                chunk = self.predict_action_chunk(history)
             self.last_chunk = chunk  # the whole generated chunk, world frame (for visualisation)
             skip = 0
             if self.config.latency_compensation:
-                # Actions are due at 1 / control_fps intervals from the observation; keep at least one.
+                # Actions are due at 1 / control_fps intervals from the observation; keep at least one. On
+                # CUDA the chunk's kernels are only queued when the sampler returns: wait for them before
+                # reading the clock. (No wait before `start`: work still queued then, such as this
+                # observation's transfer to the device, delays the chunk too and belongs in the span.)
+                self._synchronize()
                 elapsed = self._clock() - start
                 skip = min(int(elapsed * self.config.control_fps), self.config.horizon - 1)
             self._action_queue.extend(chunk[:, skip : skip + self.config.n_action_steps].unbind(1))
@@ -201,6 +252,26 @@ class ActionFlowPolicy(PreTrainedPolicy):
             action = smooth_action(self._last_action, action, self.config.action_smoothing)
         self._last_action = action
         return action
+
+    def _device(self) -> torch.device:
+        """The device the network runs on (where its weights are, whatever ``config.device`` says)."""
+        return next(self.network.parameters()).device
+
+    def _synchronize(self) -> None:
+        """Wait until the device has finished the work queued so far: on CUDA, kernels run asynchronously, and
+        a clock read without waiting measures when they were launched, not when they finished. Nothing to
+        wait for on the CPU."""
+        device = self._device()
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+
+
+def _world_actions(model: ActionFlowModel, frame: EEFFrame, x) -> Tensor:
+    """A flow state (in the EEF frame) as world-frame actions ``[B, H, 10]``, as ``ActionFlowModel.sample``
+    turns its last state into the chunk: poses to the world frame, gripper command clamped to [-1, 1]."""
+    poses = model.flow.to_poses(x)
+    rot, trans = frame.to_world(poses.rot, poses.trans)
+    return torch.cat([g.rt_to_pose9(rot, trans), poses.extra.clamp(-1.0, 1.0)], dim=-1)
 
 
 def smooth_action(previous: Tensor, new: Tensor, alpha: float) -> Tensor:

@@ -26,7 +26,7 @@ velocity is translation, rotation and extras, for the loss terms), ``network_inp
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Literal
 
@@ -219,14 +219,27 @@ def make_flow(action_space: str, extra_dim: int, rotation_noise_std: float | Non
     raise ValueError(f"action_space={action_space!r}; expected one of ('se3', 'euclidean')")
 
 
+def euler_states(flow: Flow, velocity_fn: VelocityFn, x0, grid: Tensor, start: int = 0) -> Iterator:
+    """Every state of the Euler integration of ``dx/dt = velocity_fn(x, t)`` over ``grid[start:]``: ``x0``
+    (at ``grid[start]``), then the state after each step, the last at ``grid[-1]``; ``t`` is passed as
+    ``[B]``. :func:`integrate` is its last state; the states are there to be looked at (e.g. to show how
+    the sampler carries noise to the chunk) without a second copy of the loop.
+
+    ``velocity_fn`` receives the flow's native state (``SE3State`` or a tensor) and returns ``[B, H, D]``.
+    """
+    x = x0
+    yield x
+    batch = flow.batch_size(x0)
+    for k in range(start, grid.numel() - 1):
+        t = grid[k].expand(batch)
+        x = flow.step(x, velocity_fn(x, t), grid[k + 1] - grid[k])
+        yield x
+
+
 def integrate(flow: Flow, velocity_fn: VelocityFn, x0, grid: Tensor, start: int = 0):
     """Euler-integrate ``dx/dt = velocity_fn(x, t)`` over ``grid[start:]``; ``t`` is passed as ``[B]``.
 
     ``velocity_fn`` receives the flow's native state (``SE3State`` or a tensor) and returns ``[B, H, D]``.
     """
-    x = x0
-    batch = flow.batch_size(x0)
-    for k in range(start, grid.numel() - 1):
-        t = grid[k].expand(batch)
-        x = flow.step(x, velocity_fn(x, t), grid[k + 1] - grid[k])
+    *_, x = euler_states(flow, velocity_fn, x0, grid, start)
     return x
