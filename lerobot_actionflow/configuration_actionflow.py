@@ -21,6 +21,7 @@ from lerobot_actionflow.schema import (
 ARCHITECTURES = ("ipa", "multi_token", "single_token")
 ACTION_SPACES = ("se3", "euclidean")
 TIME_SCHEDULES = ("uniform", "exponential")
+POINT_ENCODERS = ("pointnet", "vn")
 
 
 @PreTrainedConfig.register_subclass("actionflow")
@@ -86,6 +87,11 @@ class ActionFlowConfig(PreTrainedConfig):
     ipa_query_points: int = 4
     ipa_value_points: int = 4
     dropout: float = 0.0
+    # Encoder of observation.point_cloud (unused without one). "pointnet" (paper): a plain PointNet, its token
+    # posed at the centroid with the gripper's orientation, so it must learn every turn of the cloud relative
+    # to the gripper. "vn": a Vector-Neuron PointNet, whose feature does not change when the cloud turns and
+    # whose token is posed at the centroid with a rotation that turns with the cloud.
+    point_encoder: str = "pointnet"
 
     # Runtime (real-robot options of the paper's appendix).
     # Exponential smoothing of consecutive actions: a_out = alpha * a_prev + (1 - alpha) * a_new (0 = off).
@@ -113,6 +119,8 @@ class ActionFlowConfig(PreTrainedConfig):
             raise ValueError(f"action_space={self.action_space!r}; expected one of {ACTION_SPACES}")
         if self.time_schedule not in TIME_SCHEDULES:
             raise ValueError(f"time_schedule={self.time_schedule!r}; expected one of {TIME_SCHEDULES}")
+        if self.point_encoder not in POINT_ENCODERS:
+            raise ValueError(f"point_encoder={self.point_encoder!r}; expected one of {POINT_ENCODERS}")
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(
                 f"n_action_steps={self.n_action_steps}, horizon={self.horizon}; expected "

@@ -1,13 +1,18 @@
 """Per-modality token encoders: each maps one kind of observation to features of the common width ``dim``.
 
 Encoders see only quantities that are already invariant (features, images, points expressed in the
-end-effector frame), so they never break the policy's SE(3) equivariance.
+end-effector frame), so they never break the policy's SE(3) equivariance. The point cloud has two encoders
+(``ActionFlowConfig.point_encoder``): the plain PointNet, whose feature changes when the cloud turns relative
+to the gripper, and the Vector-Neuron PointNet, whose feature does not and which also gives the cloud a
+rotation that turns with it.
 """
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
+
+from lerobot_actionflow.core import geometry as g
 
 
 class VectorEncoder(nn.Module):
@@ -78,3 +83,138 @@ class PointCloudEncoder(nn.Module):
 
     def forward(self, points: Tensor) -> Tensor:
         return self.out(self.point_mlp(points).amax(dim=-2))
+
+
+class VNLinear(nn.Module):
+    """Vector-Neuron linear layer ``[*, 3, C_in] -> [*, 3, C_out]``: ``V' = W V`` (Deng et al. 2021, eq. 2).
+
+    VN features are lists of C 3-vectors, stored here as the columns of ``[*, 3, C]`` (channels last, so that
+    mixing channels is one matrix product over the last axis). The layer mixes the channels, never the xyz
+    axis, and has no bias (a bias vector would not rotate), so ``f(R V) = R f(V)`` for every rotation R: it
+    is SO(3)-equivariant.
+    """
+
+    def __init__(self, c_in: int, c_out: int):
+        super().__init__()
+        self.map = nn.Linear(c_in, c_out, bias=False)
+
+    def forward(self, v: Tensor) -> Tensor:
+        return self.map(v)
+
+
+class VNLinearLeakyReLU(nn.Module):
+    """VN linear layer followed by the VN leaky ReLU ``[*, 3, C_in] -> [*, 3, C_out]`` (Deng et al. 2021,
+    eqs. 3-4).
+
+    Each output channel has a feature ``q = W V`` and a learned direction ``k = U V``. Where ``<q, k> >= 0``
+    the ReLU keeps ``q``; elsewhere it removes the component of ``q`` along ``k``. The leaky version returns
+    ``slope * q + (1 - slope) * relu(q)``. Both ``q`` and ``k`` rotate with the input and the case is chosen
+    by an inner product, which does not, so the layer is SO(3)-equivariant.
+    """
+
+    def __init__(self, c_in: int, c_out: int, negative_slope: float = 0.2, eps: float = 1e-6):
+        super().__init__()
+        self.feature = VNLinear(c_in, c_out)
+        self.direction = VNLinear(c_in, c_out)
+        self.negative_slope, self.eps = negative_slope, eps
+
+    def forward(self, v: Tensor) -> Tensor:
+        q, k = self.feature(v), self.direction(v)  # [*, 3, C_out] each
+        dot = torch.linalg.vecdot(q, k, dim=-2)[..., None, :]  # [*, 1, C_out]
+        k_sq = torch.linalg.vecdot(k, k, dim=-2)[..., None, :]
+        # slope * q + (1 - slope) * relu(q), written as one correction of q where <q, k> < 0.
+        along_k = torch.where(dot < 0, dot / (k_sq + self.eps), 0.0)
+        return torch.addcmul(q, along_k, k, value=self.negative_slope - 1.0)
+
+
+def knn_edge_features(points: Tensor, neighbours: int) -> Tensor:
+    """VN features of each point's edges to its nearest neighbours: ``[N, P, 3] -> [N, P, k, 3, 3]`` with the
+    three vector channels (columns) ``(x_j - x_i, x_i, x_j x x_i)`` for the ``k = min(neighbours, P)``
+    nearest points ``x_j`` (the point itself included).
+
+    Distances do not change under rotation and the cross product rotates with its arguments, so the result
+    is SO(3)-equivariant and permutation-equivariant (up to exact ties in the k-th distance). Without such
+    pairs a VN network over single points only sees one direction per point and reduces to a linear map of
+    the centroid.
+    """
+    k = min(neighbours, points.shape[-2])
+    with torch.no_grad():
+        idx = torch.cdist(points, points).topk(k, dim=-1, largest=False).indices  # [N, P, k]
+    batch = torch.arange(points.shape[0], device=points.device)[:, None, None]
+    x_j = points[batch, idx]  # [N, P, k, 3]
+    x_i = points[:, :, None].expand_as(x_j)
+    return torch.stack([x_j - x_i, x_i, torch.linalg.cross(x_j, x_i, dim=-1)], dim=-1)
+
+
+def vn_rotation_frame(u: Tensor, v: Tensor, eps: float = 1e-6, parallel_tol: float = 1e-3) -> Tensor:
+    """A proper rotation ``[*, 3, 3]`` from two equivariant vectors ``u, v [*, 3]`` by Gram-Schmidt: the first
+    column is ``u`` normalised, the second the part of ``v`` orthogonal to it, the third their cross product.
+
+    Equivariant (``frame(R u, R v) = R frame(u, v)``) wherever ``|u| > eps`` and the part of ``v`` orthogonal
+    to ``u`` exceeds ``parallel_tol * |v|`` (nearer than that, float32 rounding would leave the second column
+    visibly non-orthogonal) and ``eps``. Degenerate inputs (a cloud of equal or collinear points has no
+    second direction) fall back to fixed axes, so the result is always a rotation and never NaN.
+    """
+    ex = torch.tensor([1.0, 0.0, 0.0], dtype=u.dtype, device=u.device).expand_as(u)
+    u = torch.where((u * u).sum(-1, keepdim=True) > eps**2, u, ex)
+    with torch.no_grad():
+        e1 = u / u.norm(dim=-1, keepdim=True)
+        v_perp = v - (v * e1).sum(-1, keepdim=True) * e1
+        v_sq, perp_sq = (v * v).sum(-1, keepdim=True), (v_perp * v_perp).sum(-1, keepdim=True)
+        parallel = perp_sq <= parallel_tol**2 * v_sq + eps**2
+        # Any vector orthogonal to u: its cross product with the axis it is least aligned with.
+        axis = nn.functional.one_hot(e1.abs().argmin(-1), 3).to(u.dtype)
+        fallback = torch.linalg.cross(e1, axis, dim=-1)
+    return g.rot6d_to_matrix(torch.cat([u, torch.where(parallel, fallback, v)], dim=-1))
+
+
+def vn_rms_normalise(v: Tensor, eps: float = 1e-6) -> Tensor:
+    """Scale VN features ``[*, 3, C]`` so that their channels' root-mean-square norm is 1.
+
+    Norms do not change under rotation, so this stays equivariant. It matters after mean pooling over the
+    points: features that point outwards from the centroid mostly cancel there, and without it the pooled
+    vectors (and the invariants built from their inner products) start orders of magnitude below 1.
+    """
+    return v / ((v * v).sum(-2, keepdim=True).mean(-1, keepdim=True) + eps**2).sqrt()
+
+
+class VNPointNetEncoder(nn.Module):
+    """Vector-Neuron PointNet (Deng et al. 2021) over points ``[*, P, 3]`` -> an SO(3)-invariant feature
+    ``[*, dim]`` and an SO(3)-equivariant rotation frame ``[*, 3, 3]``.
+
+    For a rotation R, ``encoder(points @ R^T) == (feature, R @ frame)``: the feature does not depend on how
+    the cloud is turned, and the frame turns with it. The points are centred at their centroid first, so
+    both are also unchanged by a translation; both ignore the order of the points. A cloud with no
+    orientation of its own (all points equal, or on one line) still gives a finite feature and a proper
+    rotation, from fixed fallback axes, which cannot be equivariant there.
+
+    Layers (``h`` = ``hidden`` vector channels): kNN edge features (:func:`knn_edge_features`) -> VN linear +
+    leaky ReLU, mean over the neighbours -> per-point VN layer -> concatenation with the mean over the points
+    -> VN layer -> VN linear -> mean over the points -> :func:`vn_rms_normalise`: ``V [*, 3, 4h]``,
+    equivariant. A VN head turns ``V`` into three equivariant vectors ``Z [*, 3, 3]``; the inner products
+    ``V^T Z`` are invariant (the VN paper's invariant layer) and an MLP maps them to ``dim``. The frame is
+    Gram-Schmidt of the first two vectors of ``Z`` (:func:`vn_rotation_frame`).
+    """
+
+    def __init__(self, dim: int, hidden: int = 21, neighbours: int = 16):
+        super().__init__()
+        self.neighbours = neighbours
+        self.edge = VNLinearLeakyReLU(3, hidden)
+        self.point = VNLinearLeakyReLU(hidden, hidden)
+        self.fuse = VNLinearLeakyReLU(2 * hidden, 2 * hidden)
+        self.lift = VNLinear(2 * hidden, 4 * hidden)
+        self.frame_head = nn.Sequential(VNLinearLeakyReLU(4 * hidden, 2 * hidden), VNLinear(2 * hidden, 3))
+        self.out = nn.Sequential(nn.Linear(4 * hidden * 3, dim), nn.GELU(), nn.Linear(dim, dim))
+
+    def forward(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        lead = points.shape[:-2]
+        x = points.reshape(-1, *points.shape[-2:])  # [N, P, 3]
+        x = x - x.mean(dim=-2, keepdim=True)
+        h = self.edge(knn_edge_features(x, self.neighbours)).mean(dim=-3)  # [N, P, 3, h]
+        h = self.point(h)
+        h = self.fuse(torch.cat([h, h.mean(dim=-3, keepdim=True).expand_as(h)], dim=-1))  # [N, P, 3, 2h]
+        v = vn_rms_normalise(self.lift(h).mean(dim=-3))  # [N, 3, 4h]
+        z = self.frame_head(v)  # [N, 3, 3]: three equivariant vectors (columns)
+        invariant = torch.einsum("ndc,ndk->nck", v, z).flatten(1)  # [N, 4h * 3]
+        frame = vn_rotation_frame(z[..., 0], z[..., 1])  # [N, 3, 3]
+        return self.out(invariant).reshape(*lead, -1), frame.reshape(*lead, 3, 3)

@@ -51,6 +51,7 @@ class ActionFlowModel(nn.Module):
             velocity_dim=self.flow.velocity_dim,
             image_keys=self.image_keys,
             point_cloud=self.has_point_cloud,
+            point_encoder=config.point_encoder,
             squash_limit=config.squash_limit,
         )
         self.network = ActionFlowNetwork(

@@ -21,7 +21,12 @@ from torch import Tensor, nn
 
 from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.adaptation import squash
-from lerobot_actionflow.core.encoders import ImageEncoder, PointCloudEncoder, VectorEncoder
+from lerobot_actionflow.core.encoders import (
+    ImageEncoder,
+    PointCloudEncoder,
+    VectorEncoder,
+    VNPointNetEncoder,
+)
 from lerobot_actionflow.core.ipa import SE3InvariantTransformer, transformer_encoder
 
 
@@ -54,6 +59,8 @@ class NetworkSpec:
     velocity_dim: int
     image_keys: tuple[str, ...] = ()
     point_cloud: bool = False
+    point_encoder: str = "pointnet"
+    """``"pointnet"``: plain PointNet, identity token rotation; ``"vn"``: Vector-Neuron PointNet and frame."""
     squash_limit: float = 1.0
     """Translations reach the network as ``squash_limit * tanh(trans / squash_limit)`` (scaled EEF frame)."""
 
@@ -97,7 +104,8 @@ class ActionFlowNetwork(nn.Module):
         self.spec, self.architecture = spec, architecture
         self.feature_encoder = VectorEncoder(spec.token_feature_dim, dim)
         self.image_encoders = nn.ModuleDict({_module_key(k): ImageEncoder(dim) for k in spec.image_keys})
-        self.point_encoder = PointCloudEncoder(dim) if spec.point_cloud else None
+        point_encoder = VNPointNetEncoder if spec.point_encoder == "vn" else PointCloudEncoder
+        self.point_encoder = point_encoder(dim) if spec.point_cloud else None
         extra_tokens = len(spec.image_keys) + int(spec.point_cloud)
         # Which entity kind (scene token, each camera, the point cloud) and which history step a token is.
         self.extra_token_embed = nn.Parameter(torch.randn(max(extra_tokens, 1), dim) * 0.02)
@@ -143,7 +151,8 @@ class ActionFlowNetwork(nn.Module):
 
         features ``[B, T, N, F]``; rot ``[B, T, N, 3, 3]``, trans ``[B, T, N, 3]`` in the scaled EEF frame;
         images ``{key: [B, T, 3, H, W]}`` in [0, 1], posed at the EEF token of their step; points
-        ``[B, T, P, 3]`` in the scaled EEF frame, posed at their centroid.
+        ``[B, T, P, 3]`` in the scaled EEF frame, posed at their centroid with the identity rotation
+        (``"pointnet"``) or the Vector-Neuron encoder's frame (``"vn"``).
         """
         b, t_steps, n, _ = features.shape
         s = self.feature_encoder(features)  # [B, T, N, C]
@@ -157,9 +166,15 @@ class ActionFlowNetwork(nn.Module):
             extra += 1
         if self.point_encoder is not None:
             centroid = points.mean(dim=-2)  # [B, T, 3]
-            pc = self.point_encoder(points - centroid[:, :, None])  # [B, T, C]
+            centred = points - centroid[:, :, None]
+            if self.spec.point_encoder == "vn":
+                pc, pc_rot = self.point_encoder(centred)  # [B, T, C] invariant, [B, T, 3, 3] equivariant
+                pc_rot = pc_rot[:, :, None]
+            else:
+                pc = self.point_encoder(centred)  # [B, T, C]
+                pc_rot = torch.eye(3, dtype=rot.dtype, device=rot.device).expand(b, t_steps, 1, 3, 3)
             feats.append((pc + self.extra_token_embed[extra])[:, :, None])
-            rots.append(torch.eye(3, dtype=rot.dtype, device=rot.device).expand(b, t_steps, 1, 3, 3))
+            rots.append(pc_rot)
             transs.append(centroid[:, :, None])
         s = torch.cat(feats, dim=2) + self.step_embed[None, :, None]  # [B, T, N', C]
         rot, trans = torch.cat(rots, dim=2), torch.cat(transs, dim=2)
