@@ -22,6 +22,11 @@ ARCHITECTURES = ("ipa", "multi_token", "single_token")
 ACTION_SPACES = ("se3", "euclidean")
 TIME_SCHEDULES = ("uniform", "exponential")
 POINT_ENCODERS = ("pointnet", "vn")
+IMAGE_ENCODERS = ("cnn", "resnet18")
+IMAGE_PLACEMENTS = ("token", "eef")
+RESNET18_MIN_IMAGE_SIDE = 33
+"""The ResNet18 encoder's feature map is 1/32 of the image: below 33 px a side it is 1x1, its keypoints are
+constant and the image is ignored."""
 
 
 @PreTrainedConfig.register_subclass("actionflow")
@@ -92,6 +97,12 @@ class ActionFlowConfig(PreTrainedConfig):
     # to the gripper. "vn": a Vector-Neuron PointNet, whose feature does not change when the cloud turns and
     # whose token is posed at the centroid with a rotation that turns with the cloud.
     point_encoder: str = "pointnet"
+    # Encoder of each observation.images.* (trained from scratch, both ending in spatial-softmax keypoints).
+    # "cnn": a small 4-stage CNN. "resnet18" (paper): torchvision's ResNet18 with GroupNorm (at least 33 px).
+    image_encoder: str = "cnn"
+    # Where an image enters the scene. "token": a token of its own, posed at the EEF token of its step.
+    # "eef" (paper): its feature is added to that EEF token's feature (the camera's pose); no extra token.
+    image_placement: str = "token"
 
     # Runtime (real-robot options of the paper's appendix).
     # Exponential smoothing of consecutive actions: a_out = alpha * a_prev + (1 - alpha) * a_new (0 = off).
@@ -121,6 +132,10 @@ class ActionFlowConfig(PreTrainedConfig):
             raise ValueError(f"time_schedule={self.time_schedule!r}; expected one of {TIME_SCHEDULES}")
         if self.point_encoder not in POINT_ENCODERS:
             raise ValueError(f"point_encoder={self.point_encoder!r}; expected one of {POINT_ENCODERS}")
+        if self.image_encoder not in IMAGE_ENCODERS:
+            raise ValueError(f"image_encoder={self.image_encoder!r}; expected one of {IMAGE_ENCODERS}")
+        if self.image_placement not in IMAGE_PLACEMENTS:
+            raise ValueError(f"image_placement={self.image_placement!r}; expected one of {IMAGE_PLACEMENTS}")
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(
                 f"n_action_steps={self.n_action_steps}, horizon={self.horizon}; expected "
@@ -200,6 +215,12 @@ class ActionFlowConfig(PreTrainedConfig):
         for key, ft in self.image_features.items():
             if len(ft.shape) != 3 or ft.shape[0] != 3:
                 raise ValueError(f"{key} has shape {tuple(ft.shape)}; expected a (3, H, W) RGB image")
+            if self.image_encoder == "resnet18" and min(ft.shape[1:]) < RESNET18_MIN_IMAGE_SIDE:
+                raise ValueError(
+                    f"{key} has shape {tuple(ft.shape)}; image_encoder='resnet18' needs H, W >= "
+                    f"{RESNET18_MIN_IMAGE_SIDE} (its feature map is 1/32 of the image; smaller ones would be "
+                    "ignored): resize the images or use image_encoder='cnn'"
+                )
         action = (self.output_features or {}).get(ACTION)
         if action is None or action.type != FeatureType.ACTION:
             raise ValueError(

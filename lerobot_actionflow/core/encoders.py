@@ -1,7 +1,9 @@
 """Per-modality token encoders: each maps one kind of observation to features of the common width ``dim``.
 
 Encoders see only quantities that are already invariant (features, images, points expressed in the
-end-effector frame), so they never break the policy's SE(3) equivariance. The point cloud has two encoders
+end-effector frame), so they never break the policy's SE(3) equivariance. Images have two encoders
+(``ActionFlowConfig.image_encoder``): a small CNN and the paper's ResNet18, both trained from scratch and
+both ending in spatial-softmax keypoints. The point cloud has two encoders
 (``ActionFlowConfig.point_encoder``): the plain PointNet, whose feature changes when the cloud turns relative
 to the gripper, and the Vector-Neuron PointNet, whose feature does not and which also gives the cloud a
 rotation that turns with it.
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
+from torchvision.models import resnet18
 
 from lerobot_actionflow.core import geometry as g
 
@@ -53,15 +56,61 @@ class ImageEncoder(nn.Module):
         self.out = nn.Sequential(nn.Linear(2 * keypoints, dim), nn.GELU(), nn.Linear(dim, dim))
 
     def forward(self, images: Tensor) -> Tensor:
-        lead = images.shape[:-3]
-        x = images.reshape(-1, *images.shape[-3:]) * 2.0 - 1.0
-        heat = self.to_keypoints(self.backbone(x))  # [B', K, h, w]
-        b, k, h, w = heat.shape
-        attn = torch.softmax(heat.flatten(2), dim=-1).view(b, k, h, w)
-        ys = torch.linspace(-1.0, 1.0, h, device=x.device, dtype=x.dtype)
-        xs = torch.linspace(-1.0, 1.0, w, device=x.device, dtype=x.dtype)
-        kp = torch.stack([(attn.sum(-2) * xs).sum(-1), (attn.sum(-1) * ys).sum(-1)], dim=-1)  # [B', K, 2]
-        return self.out(kp.flatten(1)).reshape(*lead, -1)
+        return encode_keypoints(images, self.backbone, self.to_keypoints, self.out)
+
+
+def spatial_softmax(heat: Tensor) -> Tensor:
+    """Keypoints ``[B, K, 2]`` (x, y in [-1, 1]) of heat maps ``[B, K, h, w]``: the expected pixel position
+    under each map's softmax. A map of width (height) 1 gives a constant x (y): it carries no position."""
+    b, k, h, w = heat.shape
+    attn = torch.softmax(heat.flatten(2), dim=-1).view(b, k, h, w)
+    ys = torch.linspace(-1.0, 1.0, h, device=heat.device, dtype=heat.dtype)
+    xs = torch.linspace(-1.0, 1.0, w, device=heat.device, dtype=heat.dtype)
+    return torch.stack([(attn.sum(-2) * xs).sum(-1), (attn.sum(-1) * ys).sum(-1)], dim=-1)
+
+
+def encode_keypoints(images: Tensor, backbone: nn.Module, to_keypoints: nn.Module, out: nn.Module) -> Tensor:
+    """The image encoders' shared path ``[*, 3, H, W]`` in [0, 1] -> ``[*, dim]``: pixels to [-1, 1], the
+    convolutional ``backbone``, a 1x1 convolution ``to_keypoints`` to K heat maps, :func:`spatial_softmax`,
+    and the MLP ``out`` of the 2K keypoint coordinates."""
+    lead = images.shape[:-3]
+    x = images.reshape(-1, *images.shape[-3:]) * 2.0 - 1.0
+    kp = spatial_softmax(to_keypoints(backbone(x)))  # [B', K, 2]
+    return out(kp.flatten(1)).reshape(*lead, -1)
+
+
+class ResNet18ImageEncoder(nn.Module):
+    """The paper's image encoder: RGB images ``[*, 3, H, W]`` in [0, 1] -> ``[*, dim]`` through torchvision's
+    ResNet18, built with ``weights=None`` (trained from scratch, nothing is downloaded).
+
+    Changes to the ImageNet network, for small wrist images (the paper's 80x80) and any batch size:
+
+    * BatchNorm becomes GroupNorm with groups of 16 channels (as Diffusion Policy's ResNet18), so a
+      prediction does not depend on the other samples of a batch or on running statistics, like the CNN.
+    * The classifier (global average pooling + ``fc``) is replaced by the head of :class:`ImageEncoder`: a
+      1x1 convolution to K heat maps, spatial-softmax keypoints and an MLP to ``dim``. Average pooling would
+      discard where things are in the image, which is what a wrist view tells the gripper.
+    * The 7x7 stride-2 stem and the max pooling are kept: the feature map is 1/32 of the image, 3x3 at 80x80
+      (as Diffusion Policy and robomimic use ResNet18 on 76-84 px crops; the soft-argmax of the spatial
+      softmax still places a keypoint between the cells). Without the max pooling (a 5x5 map at 80x80) the
+      backbone's forward + backward pass over 64 80x80 images took about 5x as long (7.4 s against 1.4 s,
+      one thread of this project's shared 2-core CPU); a 3x3 stride-1 stem without max pooling would
+      quadruple the area of every stage again. Images need at least 33 px a side (a 2x2 map;
+      ``ActionFlowConfig.validate_features`` checks it): below that the map is 1x1 and its keypoints are
+      constant.
+    """
+
+    def __init__(self, dim: int, keypoints: int = 32, group_size: int = 16):
+        super().__init__()
+        net = resnet18(weights=None, norm_layer=lambda c: nn.GroupNorm(c // group_size, c))
+        self.backbone = nn.Sequential(
+            net.conv1, net.bn1, net.relu, net.maxpool, net.layer1, net.layer2, net.layer3, net.layer4
+        )
+        self.to_keypoints = nn.Conv2d(net.fc.in_features, keypoints, 1)
+        self.out = nn.Sequential(nn.Linear(2 * keypoints, dim), nn.GELU(), nn.Linear(dim, dim))
+
+    def forward(self, images: Tensor) -> Tensor:
+        return encode_keypoints(images, self.backbone, self.to_keypoints, self.out)
 
 
 class PointCloudEncoder(nn.Module):

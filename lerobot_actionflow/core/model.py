@@ -50,6 +50,8 @@ class ActionFlowModel(nn.Module):
             action_input_dim=self.flow.network_input_dim,
             velocity_dim=self.flow.velocity_dim,
             image_keys=self.image_keys,
+            image_encoder=config.image_encoder,
+            image_placement=config.image_placement,
             point_cloud=self.has_point_cloud,
             point_encoder=config.point_encoder,
             squash_limit=config.squash_limit,

@@ -24,6 +24,7 @@ from lerobot_actionflow.core.adaptation import squash
 from lerobot_actionflow.core.encoders import (
     ImageEncoder,
     PointCloudEncoder,
+    ResNet18ImageEncoder,
     VectorEncoder,
     VNPointNetEncoder,
 )
@@ -58,6 +59,11 @@ class NetworkSpec:
     action_input_dim: int  # per-step action quantities fed as features (gripper; flat vector for Euclidean)
     velocity_dim: int
     image_keys: tuple[str, ...] = ()
+    image_encoder: str = "cnn"
+    """``"cnn"``: :class:`ImageEncoder`; ``"resnet18"``: :class:`ResNet18ImageEncoder` (the paper's)."""
+    image_placement: str = "token"
+    """``"token"``: each image is its own token, posed at the EEF token of its step; ``"eef"`` (the paper's):
+    its feature is added to the EEF token's feature of its step (no token of its own)."""
     point_cloud: bool = False
     point_encoder: str = "pointnet"
     """``"pointnet"``: plain PointNet, identity token rotation; ``"vn"``: Vector-Neuron PointNet and frame."""
@@ -103,10 +109,12 @@ class ActionFlowNetwork(nn.Module):
         super().__init__()
         self.spec, self.architecture = spec, architecture
         self.feature_encoder = VectorEncoder(spec.token_feature_dim, dim)
-        self.image_encoders = nn.ModuleDict({_module_key(k): ImageEncoder(dim) for k in spec.image_keys})
+        image_encoder = ResNet18ImageEncoder if spec.image_encoder == "resnet18" else ImageEncoder
+        self.image_encoders = nn.ModuleDict({_module_key(k): image_encoder(dim) for k in spec.image_keys})
         point_encoder = VNPointNetEncoder if spec.point_encoder == "vn" else PointCloudEncoder
         self.point_encoder = point_encoder(dim) if spec.point_cloud else None
-        extra_tokens = len(spec.image_keys) + int(spec.point_cloud)
+        image_tokens = len(spec.image_keys) if spec.image_placement == "token" else 0
+        extra_tokens = image_tokens + int(spec.point_cloud)
         # Which entity kind (scene token, each camera, the point cloud) and which history step a token is.
         self.extra_token_embed = nn.Parameter(torch.randn(max(extra_tokens, 1), dim) * 0.02)
         self.step_embed = nn.Parameter(torch.randn(spec.n_obs_steps, dim) * 0.02)
@@ -150,15 +158,21 @@ class ActionFlowNetwork(nn.Module):
         """Encode the observation (and the constant part of the action tokens) once per chunk.
 
         features ``[B, T, N, F]``; rot ``[B, T, N, 3, 3]``, trans ``[B, T, N, 3]`` in the scaled EEF frame;
-        images ``{key: [B, T, 3, H, W]}`` in [0, 1], posed at the EEF token of their step; points
+        images ``{key: [B, T, 3, H, W]}`` in [0, 1], each a token posed at the EEF token of its step
+        (``image_placement="token"``) or added to that EEF token's feature (``"eef"``); points
         ``[B, T, P, 3]`` in the scaled EEF frame, posed at their centroid with the identity rotation
         (``"pointnet"``) or the Vector-Neuron encoder's frame (``"vn"``).
         """
         b, t_steps, n, _ = features.shape
         s = self.feature_encoder(features)  # [B, T, N, C]
+        if self.spec.image_placement == "eef" and self.spec.image_keys:
+            # The camera is the EEF token's sensor: its image becomes part of that token's feature.
+            encoded = [self.image_encoders[_module_key(k)](images[k]) for k in self.spec.image_keys]
+            img = torch.stack(encoded).sum(0)  # [B, T, C]
+            s = torch.cat([s[:, :, :1] + img[:, :, None], s[:, :, 1:]], dim=2)
         feats, rots, transs = [s], [rot], [trans]
         extra = 0
-        for key in self.spec.image_keys:
+        for key in self.spec.image_keys if self.spec.image_placement == "token" else ():
             img = self.image_encoders[_module_key(key)](images[key])  # [B, T, C]
             feats.append((img + self.extra_token_embed[extra])[:, :, None])
             rots.append(rot[:, :, :1])
