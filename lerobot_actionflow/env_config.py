@@ -17,8 +17,12 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_actionflow import schema
 
-MUGHANGING_OPTIONS = ("hanger_obs", "mug_yaw")
-"""Env-config fields passed to ``gym.make`` for MugHanging only."""
+TASK_OPTIONS: dict[str, tuple[str, ...]] = {
+    "Lightbulb": ("socket_obs",),
+    "MugHanging": ("hanger_obs", "mug_yaw", "mask_after_grasp"),
+}
+"""Env-config fields passed to ``gym.make`` for one task only (task name -> fields); None = the env's
+default."""
 
 
 def _task_spec(task: str):
@@ -46,6 +50,10 @@ class ActionFlowEnvConfig(EnvConfig):
     """MugHanging only: ``pose`` or ``point_cloud``."""
     mug_yaw: str | None = None
     """MugHanging only: ``any`` (the env's default) or ``slight`` (the paper's protocol)."""
+    mask_after_grasp: bool | None = None
+    """MugHanging only, with ``obs_mode=pixels``: black out the wrist image but the mug while it is held."""
+    socket_obs: str | None = None
+    """Lightbulb only: ``pose`` (the env's default) or ``none`` (no socket token; needs obs_mode=pixels)."""
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: dict(schema.FEATURES_MAP))
 
@@ -56,9 +64,10 @@ class ActionFlowEnvConfig(EnvConfig):
             self.variant = spec.kwargs(self.variant, self.obs_mode)["variant"]
         except ValueError as err:
             raise ValueError(f"--env.{err}") from None
-        for name in MUGHANGING_OPTIONS:
-            if getattr(self, name) is not None and spec.name != "MugHanging":
-                raise ValueError(f"--env.{name} is a MugHanging option; the task is {spec.name}")
+        for owner, names in TASK_OPTIONS.items():
+            for name in names:
+                if getattr(self, name) is not None and spec.name != owner:
+                    raise ValueError(f"--env.{name} is a {owner} option; the task is {spec.name}")
         if not self.features:
             self.features = self._features_from_env(spec)
 
@@ -75,7 +84,7 @@ class ActionFlowEnvConfig(EnvConfig):
     def gym_kwargs(self) -> dict:
         spec = _task_spec(self.task)
         kwargs = spec.kwargs(self.variant, self.obs_mode)
-        for name in MUGHANGING_OPTIONS:
+        for name in TASK_OPTIONS.get(spec.name, ()):
             if getattr(self, name) is not None:
                 kwargs[name] = getattr(self, name)
         return kwargs

@@ -18,7 +18,9 @@ Optional hooks (the default does nothing):
   a counter the success rule reads);
 * ``_show_success(success)``: show the task state in the scene before the observation renders (a lit bulb);
 * ``_extra_observation_spaces()`` / ``_extra_observation()``: observation keys beyond the tokens (a point
-  cloud).
+  cloud);
+* ``_wrist_image()``: the wrist image of ``obs_mode="pixels"`` (default: as rendered; a task may mask it,
+  ``_geom_ids`` tells which geom each pixel shows).
 
 One control step: action -> IK -> physics -> ``_after_physics`` -> success (computed once) ->
 ``_show_success`` -> observation. A reset: robot home -> ``_sample_layout`` -> settle -> ``_after_reset`` ->
@@ -234,6 +236,10 @@ class ManipulationEnv(gym.Env):
         """Values of the keys of :meth:`_extra_observation_spaces` for the current state."""
         return {}
 
+    def _wrist_image(self) -> np.ndarray:
+        """The wrist image of the observation, (image_size, image_size, 3) uint8 (default: as rendered)."""
+        return self._render_camera(WRIST_CAMERA, self.image_size, self.image_size)
+
     # ------------------------------------------------------------------ helpers for tasks
     @property
     def task(self) -> str:
@@ -372,13 +378,18 @@ class ManipulationEnv(gym.Env):
             **self._extra_observation(),
         }
         if self.obs_mode == "pixels":
-            obs["pixels"] = {"wrist": self._render_camera(WRIST_CAMERA, self.image_size, self.image_size)}
+            obs["pixels"] = {"wrist": self._wrist_image()}
         return obs
 
     # ------------------------------------------------------------------ rendering
-    def _renderer(self, height: int, width: int, depth: bool = False) -> mujoco.Renderer:
-        """A cached offscreen renderer of this size (and kind), freed by close() or at exit."""
-        key = f"{'depth' if depth else 'rgb'}:{height}x{width}"
+    def _renderer(
+        self, height: int, width: int, depth: bool = False, segmentation: bool = False
+    ) -> mujoco.Renderer:
+        """A cached offscreen renderer of this size and kind (RGB, depth or segmentation), freed by close() or
+        at exit."""
+        if depth and segmentation:
+            raise ValueError("a renderer renders depth or segmentation, not both")
+        key = f"{'depth' if depth else 'segmentation' if segmentation else 'rgb'}:{height}x{width}"
         renderer = self._renderers.get(key)
         if renderer is None:
             try:
@@ -390,6 +401,8 @@ class ManipulationEnv(gym.Env):
                 ) from err
             if depth:
                 renderer.enable_depth_rendering()
+            if segmentation:
+                renderer.enable_segmentation_rendering()
             self._renderers[key] = renderer
             if self._exit_hook is None:
                 # Free GL contexts at exit before MuJoCo's own EGL shutdown hook (registered earlier, so it
@@ -402,6 +415,15 @@ class ManipulationEnv(gym.Env):
         renderer = self._renderer(height, width)
         renderer.update_scene(self.data, camera=camera)
         return renderer.render().copy()
+
+    def _geom_ids(self, camera: str, height: int, width: int) -> np.ndarray:
+        """(height, width) int32: the id of the geom each pixel of ``camera``'s image shows, -1 where none
+        (the background). Pixel-aligned with :meth:`_render_camera` of the same size (MuJoCo's segmentation
+        rendering, a separate cached renderer)."""
+        renderer = self._renderer(height, width, segmentation=True)
+        renderer.update_scene(self.data, camera=camera)
+        seg = renderer.render()  # [H, W, 2]: (object id, object type) per pixel, (-1, -1) for the background
+        return np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1).astype(np.int32)
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:

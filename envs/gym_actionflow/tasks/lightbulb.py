@@ -3,12 +3,15 @@ of a socket, push it down and turn it 67 degrees to lock it; then the bulb light
 
 from __future__ import annotations
 
+from typing import Any
+
 import mujoco
 import numpy as np
 
 from gym_actionflow.base import SUBSTEPS, TABLE_TOP, ManipulationEnv
 from gym_actionflow.geometry import matrix_to_quat, yaw_matrix, yaw_quat
 from gym_actionflow.placement import Region
+from gym_actionflow.registry import check_choice
 
 # ---------------------------------------------------------------- bulb (free body), bulb frame
 # Bulb frame: origin at the centre of the cap's bottom face, z along the bulb axis towards the glass, x
@@ -69,6 +72,11 @@ LOCK_TOL = np.deg2rad(7.0)
 """Success: the cap bottom within 2 mm of the socket floor, the bulb axis within 2 mm and 10 degrees of the
 socket axis, and the bulb turned 67 +- 7 degrees from an entry slot (the pins are then in the channels,
 under the upper ring)."""
+
+# ---------------------------------------------------------------- observation
+SOCKET_OBS = ("pose", "none")
+"""What the tokens tell about the socket (``socket_obs``): ``pose``, its simulator pose as a token; ``none``,
+no token (the paper's light-bulb policy saw the wrist camera and the end effector, not the socket)."""
 
 # ---------------------------------------------------------------- starting state
 SOCKET_REGION = Region((-0.05, 0.15), (-0.15, 0.15), (-LOCK_ANGLE / 2, np.pi - LOCK_ANGLE / 2))
@@ -203,7 +211,7 @@ class LightbulbEnv(ManipulationEnv):
     ## Observation
     | key | shape | content |
     |---|---|---|
-    | `token_poses` | (3, 9) | world poses: 0 = EEF (TCP), 1 = bulb, 2 = socket |
+    | `token_poses` | (3, 9) | world poses: 0 = EEF (TCP), 1 = bulb, 2 = socket (absent: see `socket_obs`) |
     | `token_features` | (3, 4) | one-hot token id (3) + gripper opening in m (EEF) |
     | `agent_pos` | (10,) | EEF pose (9) + gripper opening |
     | `environment_state` | (18,) | poses of bulb and socket |
@@ -215,6 +223,13 @@ class LightbulbEnv(ManipulationEnv):
     rests), z along the socket axis (up), x pointing at the first entry slot (the second is at -x). Seated at
     an entry the bulb's pose equals the socket's (up to the half-turn symmetry); locked, it is turned by +67
     degrees about z. No task scalars.
+
+    `socket_obs="none"` (default `"pose"`) removes the socket's token, as the paper's light-bulb policy saw
+    only the wrist RGB camera and the end effector: the tokens are 0 = EEF and 1 = bulb, so `token_poses` is
+    (2, 9), `token_features` (2, 3) and `environment_state` (9,), the bulb's pose. The socket is then seen
+    only through the wrist camera, so this needs `obs_mode="pixels"` (a ValueError otherwise: nothing else
+    would tell where the socket is). The success rule and the scripted expert read the socket's pose from the
+    simulator, so they work as with `"pose"`.
 
     ## Action
     (10,) float32: absolute target TCP pose (9, world frame) + gripper command in [-1 open, 1 close]. The
@@ -239,13 +254,26 @@ class LightbulbEnv(ManipulationEnv):
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (300).
 
     ## Version history
-    * v0: initial release.
+    * v0: initial release. Added since, default unchanged: `socket_obs`.
     """
 
     entity_names = ("bulb", "socket")
     variants = ("D0",)
     task_description = "Insert the light bulb's pins into the socket, push it down and turn it to lock it."
     default_image_size = 80
+
+    def __init__(self, *args: Any, socket_obs: str = "pose", **kwargs: Any) -> None:
+        """The base's arguments (positional ones too, as before) and ``socket_obs``, keyword only."""
+        check_choice("socket_obs", socket_obs, SOCKET_OBS, " ('none' leaves the socket to the wrist camera)")
+        self.socket_obs = socket_obs
+        if socket_obs == "none":
+            self.entity_names = ("bulb",)
+        super().__init__(*args, **kwargs)
+        if socket_obs == "none" and self.obs_mode != "pixels":
+            raise ValueError(
+                f"socket_obs='none' with obs_mode={self.obs_mode!r}: without its token only the wrist camera "
+                "shows the socket; pass obs_mode='pixels' (or keep socket_obs='pose')"
+            )
 
     def _build_task(self, spec: mujoco.MjSpec) -> None:
         spec.add_material(name="socket_plastic", rgba=(0.18, 0.18, 0.2, 1.0))
@@ -292,6 +320,8 @@ class LightbulbEnv(ManipulationEnv):
 
     # ------------------------------------------------------------------ observation and success
     def _entity_poses(self):
+        if self.socket_obs == "none":
+            return [self.body_pose(self.bulb_id)]
         return [self.body_pose(self.bulb_id), self.body_pose(self.socket_id)]
 
     def _show_success(self, success: bool) -> None:

@@ -20,6 +20,7 @@ from gym_actionflow.point_cloud import (
     voxel_unique,
 )
 from gym_actionflow.registry import check_choice
+from gym_actionflow.robot import WRIST_CAMERA
 
 # ---------------------------------------------------------------- mug (free body), mug frame
 # Mug frame: origin at the centre of the mug's bottom (on the table when it stands), z up along the mug's
@@ -207,7 +208,7 @@ class MugHangingEnv(ManipulationEnv):
     | `agent_pos` | (10,) | EEF pose (9) + gripper opening |
     | `environment_state` | (18,) | poses of the mug and the hanger token |
     | `point_cloud` | (P, 3) float32 | only with `hanger_obs="point_cloud"`: world points on the hanger |
-    | `pixels` | {"wrist": (80, 80, 3) uint8} | only with `obs_mode="pixels"` |
+    | `pixels` | {"wrist": (80, 80, 3) uint8} | only with `obs_mode="pixels"` (see `mask_after_grasp`) |
 
     Pose vectors are `[x, y, z, r00, r10, r20, r01, r11, r21]` (position + first two rotation columns). Mug
     pose: origin at the centre of its bottom, z along its axis, x pointing at the handle (the handle's opening
@@ -223,6 +224,19 @@ class MugHangingEnv(ManipulationEnv):
     episode: the hanger never moves). Boxes: train x in [0.02, 0.205], y in [-0.065, 0.065]; test x in
     [-0.10, 0.185], |y| in [0.115, 0.325]. The points lie within 0.4 mm of the hanger's surfaces; the cloud
     costs about 0.2 s per reset (`cloud_seconds`), the renderer is kept across resets and freed by `close()`.
+
+    `mask_after_grasp=True` (default False; needs `obs_mode="pixels"`) removes the wrist image's background
+    while the mug is held, after the paper's modified image observations: every pixel that does not show the
+    mug, the gripper's fingers included, is set to black (0, 0, 0); the mug's pixels keep their colour. "Held"
+    is `mug_held()`: both finger pads touch the mug (the base's `is_grasped`), checked on the state the image
+    shows, so the mask comes with the grasp and goes when the gripper lets go. The paper's trigger, the closed
+    gripper, differs mainly when the gripper closes on nothing: here the image then stays unmasked, so a
+    missed grasp stays visible. Which pixels show the mug comes from MuJoCo's segmentation rendering of the
+    same camera (a second cached renderer, about 7 ms per held step). The paper, on the real robot, kept a
+    fixed 30 x 30 pixel centre region of the image once the gripper closed and noted that masking by depth
+    would do the same; this camera sees the held mug at the bottom of the image, not in its centre, so the
+    mask follows the mug's own pixels instead (the exact version of that masking). Before the grasp the image
+    is the unmasked one, bit for bit.
 
     ## Action
     (10,) float32: absolute target TCP pose (9, world frame) + gripper command in [-1 open, 1 close]. The
@@ -255,7 +269,8 @@ class MugHangingEnv(ManipulationEnv):
       name, still works with a DeprecationWarning). Added since, defaults unchanged: `mug_yaw` and
       `variant="scene_moved"`. With the stiff contacts of the Panda-like physics, the peg and pole sense
       the mug 1 mm early (`SENSE_MARGIN`, no force), so a mug resting on the peg counts as hanging at every
-      step instead of flickering in and out of contact (which could only delay or deny success).
+      step instead of flickering in and out of contact (which could only delay or deny success). Added since,
+      default unchanged: `mask_after_grasp`.
     """
 
     entity_names = ("mug", "hanger")
@@ -264,7 +279,8 @@ class MugHangingEnv(ManipulationEnv):
     default_image_size = 80
 
     def __init__(self, variant: str | None = None, hanger_obs: str = "pose", n_points: int = 512,
-                 layout: str | None = None, mug_yaw: str = "any", **kwargs) -> None:
+                 layout: str | None = None, mug_yaw: str = "any", mask_after_grasp: bool = False,
+                 **kwargs) -> None:
         if layout is not None:
             warnings.warn("MugHangingEnv(layout=...) is deprecated: use variant=... (the same values), "
                           "the keyword of every gym_actionflow task", DeprecationWarning,
@@ -281,6 +297,12 @@ class MugHangingEnv(ManipulationEnv):
                 f"n_points={n_points!r}; expected a positive integer (points in the hanger cloud)"
             )
         check_choice("mug_yaw", mug_yaw, tuple(MUG_YAWS), " (the mug's yaw range)")
+        if not isinstance(mask_after_grasp, bool | np.bool_):
+            raise ValueError(
+                f"mask_after_grasp={mask_after_grasp!r}; expected True (black out the wrist image but the "
+                "mug while it is held) or False"
+            )
+        self.mask_after_grasp = bool(mask_after_grasp)
         self.mug_yaw = mug_yaw
         self.mug_region = Region(MUG_REGION.x, MUG_REGION.y, MUG_YAWS[mug_yaw])
         """Where and at which yaw the mug stands (in ``train``'s frame of the hanger for ``scene_moved``)."""
@@ -291,6 +313,11 @@ class MugHangingEnv(ManipulationEnv):
         self.cloud_seconds = 0.0
         """Wall time (s) the last reset spent rendering and processing the point cloud."""
         super().__init__(variant=variant, **kwargs)
+        if self.mask_after_grasp and self.obs_mode != "pixels":
+            raise ValueError(
+                f"mask_after_grasp=True with obs_mode={self.obs_mode!r}: the mask applies to the wrist "
+                "image; pass obs_mode='pixels' (or mask_after_grasp=False)"
+            )
 
     @property
     def layout(self) -> str:
@@ -316,6 +343,7 @@ class MugHangingEnv(ManipulationEnv):
         self.mug_id = m.body("mug").id
         self.hanger_id = m.body("hanger").id
         self.mug_geoms = self.geoms_of("mug")
+        self.mug_geom_ids = np.array(sorted(self.mug_geoms), dtype=np.int32)
         self.hanger_geoms = self.geoms_of("hanger")
         self.support_geoms = {m.geom("hanger_peg").id, m.geom("hanger_pole").id}
         self.ground_geoms = {m.geom("table").id, m.geom("floor").id, m.geom("hanger_plate").id}
@@ -385,6 +413,22 @@ class MugHangingEnv(ManipulationEnv):
 
     def _extra_observation(self) -> dict[str, np.ndarray]:
         return {"point_cloud": self._cloud.copy()} if self.hanger_obs == "point_cloud" else {}
+
+    def mug_held(self) -> bool:
+        """Both finger pads touch the mug: the grasp that switches on ``mask_after_grasp``'s mask."""
+        return self.is_grasped(self.mug_geoms)
+
+    def mug_mask(self) -> np.ndarray:
+        """(image_size, image_size) bool: the wrist image's pixels that show the mug, from MuJoCo's
+        segmentation rendering of the wrist camera in the current state."""
+        ids = self._geom_ids(WRIST_CAMERA, self.image_size, self.image_size)
+        return np.isin(ids, self.mug_geom_ids)
+
+    def _wrist_image(self) -> np.ndarray:
+        image = super()._wrist_image()
+        if self.mask_after_grasp and self.mug_held():
+            image[~self.mug_mask()] = 0  # [H, W, 3]: everything but the mug black
+        return image
 
     # ------------------------------------------------------------------ success
     def handle_on_peg(self) -> bool:
