@@ -24,9 +24,10 @@ TIME_SCHEDULES = ("uniform", "exponential")
 POINT_ENCODERS = ("pointnet", "vn")
 IMAGE_ENCODERS = ("cnn", "resnet18")
 IMAGE_PLACEMENTS = ("token", "eef")
-RESNET18_MIN_IMAGE_SIDE = 33
-"""The ResNet18 encoder's feature map is 1/32 of the image: below 33 px a side it is 1x1, its keypoints are
-constant and the image is ignored."""
+MIN_IMAGE_SIDE = {"cnn": 17, "resnet18": 33}
+"""Smallest image side each encoder can see: the CNN's feature map is 1/16 of the image and the ResNet18's
+1/32; below these sides the map is 1x1, its spatial-softmax keypoints are constant and the image is
+ignored."""
 
 
 @PreTrainedConfig.register_subclass("actionflow")
@@ -215,11 +216,11 @@ class ActionFlowConfig(PreTrainedConfig):
         for key, ft in self.image_features.items():
             if len(ft.shape) != 3 or ft.shape[0] != 3:
                 raise ValueError(f"{key} has shape {tuple(ft.shape)}; expected a (3, H, W) RGB image")
-            if self.image_encoder == "resnet18" and min(ft.shape[1:]) < RESNET18_MIN_IMAGE_SIDE:
+            min_side = MIN_IMAGE_SIDE[self.image_encoder]
+            if min(ft.shape[1:]) < min_side:
                 raise ValueError(
-                    f"{key} has shape {tuple(ft.shape)}; image_encoder='resnet18' needs H, W >= "
-                    f"{RESNET18_MIN_IMAGE_SIDE} (its feature map is 1/32 of the image; smaller ones would be "
-                    "ignored): resize the images or use image_encoder='cnn'"
+                    f"{key} has shape {tuple(ft.shape)}; image_encoder={self.image_encoder!r} needs H, W >= "
+                    f"{min_side} (smaller images give a 1x1 feature map and would be ignored): resize them"
                 )
         action = (self.output_features or {}).get(ACTION)
         if action is None or action.type != FeatureType.ACTION:

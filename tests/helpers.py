@@ -13,7 +13,7 @@ N_TOKENS, N_FEATURES = 3, 4
 def make_config(extra_inputs: dict[str, tuple[int, ...]] | None = None, **overrides) -> ActionFlowConfig:
     """A CPU ActionFlowConfig for the synthetic 3-token task; keyword arguments override fields.
 
-    ``extra_inputs`` adds modalities by env key and shape, e.g. ``{"pixels/wrist": (16, 16, 3)}``."""
+    ``extra_inputs`` adds modalities by env key and shape, e.g. ``{"pixels/wrist": (32, 32, 3)}``."""
     cfg = ActionFlowConfig(device="cpu", **overrides)
     shapes = schema.token_shapes(N_TOKENS, N_FEATURES) | (extra_inputs or {})
     cfg.input_features, cfg.output_features = schema.policy_features(shapes)

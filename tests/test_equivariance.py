@@ -105,11 +105,11 @@ def test_policy_with_image_and_point_cloud_tokens():
     """Wrist images (posed at the EEF) and a fixture point cloud (posed at its centroid) train, sample, and
     keep the policy equivariant when the cloud moves with the scene."""
     torch.manual_seed(0)
-    cfg = make_config(extra_inputs={"pixels/wrist": (16, 16, 3), "point_cloud": (32, 3)})
+    cfg = make_config(extra_inputs={"pixels/wrist": (32, 32, 3), "point_cloud": (32, 3)})
     policy = ActionFlowPolicy(cfg).eval()
     obs = _observation(3, b=2)
     gen = torch.Generator().manual_seed(4)
-    obs["observation.images.wrist"] = torch.rand(2, 2, 3, 16, 16, generator=gen)
+    obs["observation.images.wrist"] = torch.rand(2, 2, 3, 32, 32, generator=gen)
     obs["observation.point_cloud"] = torch.randn(2, 2, 32, 3, generator=gen) * 0.05 + 0.3
     batch = {
         **obs,
@@ -120,7 +120,9 @@ def test_policy_with_image_and_point_cloud_tokens():
     loss, _ = policy.forward(batch)
     loss.backward()
     assert policy.network.point_encoder.point_mlp[0].weight.grad.abs().sum() > 0
-    assert next(iter(policy.network.image_encoders.values())).out[0].weight.grad.abs().sum() > 0
+    image_encoder = next(iter(policy.network.image_encoders.values()))
+    assert image_encoder.out[0].weight.grad.abs().sum() > 0
+    assert image_encoder.backbone[0][0].weight.grad.abs().sum() > 0  # the image itself reaches the loss
 
     d_rot, d_trans = random_se3(5)
     moved = dict(obs)

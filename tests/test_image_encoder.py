@@ -186,12 +186,15 @@ def test_unknown_image_option_is_rejected(field, choices):
         make_config(**{field: "bogus"})
 
 
-def test_resnet18_rejects_images_too_small_for_its_feature_map():
-    """At 32 px the ResNet's feature map is 1x1 and its keypoints are constant: the policy would silently
-    ignore the camera."""
+def test_encoders_reject_images_too_small_for_their_feature_map():
+    """At 32 px the ResNet's feature map is 1x1 (at 16 px the CNN's) and its keypoints are constant: the
+    policy would silently ignore the camera."""
     with pytest.raises(ValueError, match=r"image_encoder='resnet18' needs H, W >= 33"):
         ActionFlowPolicy(make_config(extra_inputs={"pixels/wrist": (32, 80, 3)}, image_encoder="resnet18"))
     ActionFlowPolicy(make_config(extra_inputs={"pixels/wrist": (32, 80, 3)}))  # the CNN accepts it
+    with pytest.raises(ValueError, match=r"image_encoder='cnn' needs H, W >= 17"):
+        ActionFlowPolicy(make_config(extra_inputs={"pixels/wrist": (16, 80, 3)}))
+    ActionFlowPolicy(make_config(extra_inputs={"pixels/wrist": (17, 17, 3)}))
 
 
 def test_resnet18_eef_policy_save_load_round_trip_is_bit_exact(tmp_path):

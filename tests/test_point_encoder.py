@@ -181,7 +181,7 @@ def _observation(seed: int, b: int = 2, t: int = 2):
     return {
         "observation.token_poses": poses,
         "observation.token_features": torch.randn(b, t, 3, 4, generator=gen),
-        "observation.images.wrist": torch.rand(b, t, 3, 16, 16, generator=gen),
+        "observation.images.wrist": torch.rand(b, t, 3, 32, 32, generator=gen),
         # An elongated fixture 0.3 m away, about 10 cm long.
         POINTS: torch.randn(b, t, 32, 3, generator=gen) * torch.tensor([0.05, 0.02, 0.01]) + 0.3,
     }
@@ -196,7 +196,7 @@ def test_policy_with_vn_point_cloud_is_se3_equivariant(architecture, seed):
     its orientation (carried by the token's rotation, not its feature) both change the actions."""
     torch.manual_seed(0)
     cfg = make_config(
-        extra_inputs={"pixels/wrist": (16, 16, 3), "point_cloud": (32, 3)},
+        extra_inputs={"pixels/wrist": (32, 32, 3), "point_cloud": (32, 3)},
         point_encoder="vn",
         architecture=architecture,
     )
