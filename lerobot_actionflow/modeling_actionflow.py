@@ -19,8 +19,6 @@ from torch import Tensor
 
 from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
 from lerobot_actionflow.core import geometry as g
-from lerobot_actionflow.core.adaptation import EEFFrame
-from lerobot_actionflow.core.flow import euler_states, time_grid
 from lerobot_actionflow.core.model import ActionFlowModel
 from lerobot_actionflow.schema import ACTION, ACTION_DIM, POSE_DIM, POSE_LAYOUT, TOKEN_FEATURES, TOKEN_POSES
 
@@ -197,26 +195,11 @@ class ActionFlowPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def sample_trajectory(self, batch: dict[str, Tensor], noise=None) -> FlowTrajectory:
-        """:meth:`predict_action_chunk` with every intermediate state kept (see :class:`FlowTrajectory`).
-
-        The same computation in the same order as ``ActionFlowModel.sample`` (encode, draw the noise, the
-        Euler steps of :func:`~lerobot_actionflow.core.flow.euler_states`), so that under the same seed
-        ``actions[-1]`` is bit-for-bit the chunk ``predict_action_chunk`` samples (tested).
-        """
-        obs = self._check_and_stack(batch)
-        model = self.model
-        frame, scene = model.encode(obs)
-        b, device = obs[TOKEN_POSES].shape[0], obs[TOKEN_POSES].device
-        x = noise if noise is not None else model.flow.noise(b, self.config.horizon, device=device)
-        grid = time_grid(
-            self.config.num_inference_steps,
-            self.config.time_schedule,
-            self.config.time_schedule_rate,
-            device=device,
-        )
-        states = euler_states(model.flow, lambda state, t: model.velocity(scene, state, t), x, grid)
-        actions = [_world_actions(model, frame, state) for state in states]  # K + 1 x [B, H, 10]
-        return FlowTrajectory(times=grid, actions=torch.stack(actions))
+        """:meth:`predict_action_chunk` with every intermediate state kept (see :class:`FlowTrajectory`):
+        under the same seed ``actions[-1]`` is bit for bit the chunk ``predict_action_chunk`` samples
+        (tested), as both run ``ActionFlowModel``'s one sampling path."""
+        times, actions = self.model.sample_trajectory(self._check_and_stack(batch), noise)
+        return FlowTrajectory(times=times, actions=actions)
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
@@ -264,14 +247,6 @@ class ActionFlowPolicy(PreTrainedPolicy):
         device = self._device()
         if device.type == "cuda":
             torch.cuda.synchronize(device)
-
-
-def _world_actions(model: ActionFlowModel, frame: EEFFrame, x) -> Tensor:
-    """A flow state (in the EEF frame) as world-frame actions ``[B, H, 10]``, as ``ActionFlowModel.sample``
-    turns its last state into the chunk: poses to the world frame, gripper command clamped to [-1, 1]."""
-    poses = model.flow.to_poses(x)
-    rot, trans = frame.to_world(poses.rot, poses.trans)
-    return torch.cat([g.rt_to_pose9(rot, trans), poses.extra.clamp(-1.0, 1.0)], dim=-1)
 
 
 def smooth_action(previous: Tensor, new: Tensor, alpha: float) -> Tensor:

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 
 from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.adaptation import EEFFrame
-from lerobot_actionflow.core.flow import SE3State, integrate, make_flow, time_grid
+from lerobot_actionflow.core.flow import SE3State, euler_states, make_flow, time_grid
 from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
 from lerobot_actionflow.schema import GRIPPER_DIM, POINT_CLOUD, POSE_DIM, TOKEN_FEATURES, TOKEN_POSES
 
@@ -119,6 +119,19 @@ class ActionFlowModel(nn.Module):
         ``noise`` (optional) is the initial flow state in the EEF frame (an ``SE3State`` for ``se3``, a
         ``[B, H, 10]`` tensor for ``euclidean``); by default it is drawn from torch's global generator.
         """
+        frame, _, states = self._flow_states(obs, noise)
+        *_, x = states
+        return self.world_actions(frame, x)
+
+    def sample_trajectory(self, obs: dict[str, Tensor], noise=None) -> tuple[Tensor, Tensor]:
+        """:meth:`sample` with every state kept: the time grid ``[K + 1]`` and the world-frame actions
+        ``[K + 1, B, horizon, 10]`` at each of its points, from the noise (t = 0) to the chunk (t = 1); the
+        last is :meth:`sample`'s chunk, bit for bit, under the same seed."""
+        frame, grid, states = self._flow_states(obs, noise)
+        return grid, torch.stack([self.world_actions(frame, x) for x in states])
+
+    def _flow_states(self, obs: dict[str, Tensor], noise=None):
+        """The EEF frame, the time grid and the (lazy) Euler states of one chunk's flow."""
         frame, scene = self.encode(obs)
         b, device = obs[TOKEN_POSES].shape[0], obs[TOKEN_POSES].device
         x = noise if noise is not None else self.flow.noise(b, self.config.horizon, device=device)
@@ -128,7 +141,11 @@ class ActionFlowModel(nn.Module):
             self.config.time_schedule_rate,
             device=device,
         )
-        x = integrate(self.flow, lambda state, t: self.velocity(scene, state, t), x, grid)
+        return frame, grid, euler_states(self.flow, lambda state, t: self.velocity(scene, state, t), x, grid)
+
+    def world_actions(self, frame: EEFFrame, x) -> Tensor:
+        """A flow state (EEF frame) as world-frame actions ``[B, H, 10]``: poses to the world frame, the
+        gripper command clamped to [-1, 1]."""
         poses = self.flow.to_poses(x)
         rot, trans = frame.to_world(poses.rot, poses.trans)
         return torch.cat([g.rt_to_pose9(rot, trans), poses.extra.clamp(-1.0, 1.0)], dim=-1)
