@@ -168,8 +168,24 @@ def lr_at(step: int, cfg: ActionFlowConfig, total: int) -> float:
     return cfg.scheduler_decay_lr + (cfg.optimizer_lr - cfg.scheduler_decay_lr) * cos
 
 
+def lerobot_batches(policy: ActionFlowPolicy, root: Path, batch_size: int):
+    """Endless batches from LeRobot's own streaming loader over the LeRobotDataset at ``root``, built as
+    ``lerobot-train --dataset.streaming=true --num_workers=1`` builds it (its delta timestamps, one worker,
+    persistent, prefetch 4), for ``--loader lerobot``."""
+    from lerobot.datasets import LeRobotDatasetMetadata, resolve_delta_timestamps
+    from lerobot.datasets.streaming_dataset import StreamingLeRobotDataset
+
+    meta = LeRobotDatasetMetadata("local/ablate", root=root)
+    dataset = StreamingLeRobotDataset("local/ablate", root=root, max_num_shards=1,
+                                      delta_timestamps=resolve_delta_timestamps(policy.config, meta))
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, num_workers=1, drop_last=False,
+                                         persistent_workers=True, prefetch_factor=4)
+    while True:
+        yield from loader
+
+
 def train(policy: ActionFlowPolicy, batches: Batches, steps: int, batch_size: int, seed: int,
-          loader: str = "uniform") -> list[float]:
+          loader: str = "uniform", dataset_root: Path | None = None) -> list[float]:
     cfg = policy.config
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
@@ -178,14 +194,17 @@ def train(policy: ActionFlowPolicy, batches: Batches, steps: int, batch_size: in
     policy.train()
     losses = []
     order = stream_order(batches.size, STREAM_BUFFER, gen) if loader == "stream" else None
+    stream = lerobot_batches(policy, dataset_root, batch_size) if loader == "lerobot" else None
     bar = tqdm(range(steps), desc="training", mininterval=5)
     for step in bar:
         for group in opt.param_groups:
             group["lr"] = lr_at(step, cfg, steps)
-        if order is None:
-            batch = batches.sample(batch_size, gen)
-        else:
+        if stream is not None:
+            batch = next(stream)
+        elif order is not None:
             batch = batches.at(torch.tensor([next(order) for _ in range(batch_size)]))
+        else:
+            batch = batches.sample(batch_size, gen)
         loss, _ = policy.forward(batch)
         opt.zero_grad()
         loss.backward()
@@ -288,9 +307,16 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--steps", type=int, default=3000)
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--loader", choices=("uniform", "stream"), default="uniform",
+    p.add_argument("--init-seed", type=int, default=None,
+                   help="seed torch before the policy is built, for reproducible initial weights (default: "
+                   "unseeded, as the cells before this option)")
+    p.add_argument("--loader", choices=("uniform", "stream", "lerobot"), default="uniform",
                    help="uniform: frames drawn with replacement (a map-style loader's shuffle); stream: the "
-                   "order of LeRobot's streaming dataset over one file (a 1000-frame shuffle buffer)")
+                   "order of LeRobot's streaming dataset over one file (a 1000-frame shuffle buffer); "
+                   "lerobot: LeRobot's streaming loader itself over --dataset-root")
+    p.add_argument("--dataset-root", type=Path, default=None,
+                   help="with --loader lerobot: a LeRobotDataset of the same demonstrations "
+                   "(actionflow-record)")
     p.add_argument("--eval-variants", nargs="+", default=None)
     p.add_argument("--eval-episodes", type=int, default=50)
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE")
@@ -316,7 +342,8 @@ def main(argv: list[str] | None = None) -> None:
     results = args.results or Path(f"eval/results/ablate_{args.task}.jsonl")
     key = dict(name=name, task=args.task, variant=args.variant, episodes=args.episodes, steps=args.steps,
                batch_size=args.batch_size, seed=args.seed, overrides=overrides, env_kwargs=env_kwargs,
-               checkpoint=str(args.checkpoint) if args.checkpoint else None, loader=args.loader)
+               checkpoint=str(args.checkpoint) if args.checkpoint else None, loader=args.loader,
+               init_seed=args.init_seed)
     if results.exists():
         for line in results.read_text().splitlines():
             row = json.loads(line)
@@ -337,10 +364,15 @@ def main(argv: list[str] | None = None) -> None:
         frames, train_s, final_loss = None, 0.0, None
     else:
         data = record(args.task, args.variant, args.episodes, args.noise, env_kwargs, args.cache)
+        if args.init_seed is not None:
+            torch.manual_seed(args.init_seed)
         policy = make_policy(data, overrides)
         batches = Batches(data, policy.config.n_obs_steps, policy.config.horizon)
         t0 = time.time()
-        losses = train(policy, batches, args.steps, args.batch_size, args.seed, args.loader)
+        if args.loader == "lerobot" and args.dataset_root is None:
+            raise ValueError("--loader lerobot needs --dataset-root (a LeRobotDataset of the demonstrations)")
+        losses = train(policy, batches, args.steps, args.batch_size, args.seed, args.loader,
+                       args.dataset_root)
         train_s = time.time() - t0
         frames, final_loss = batches.size, float(np.mean(losses[-200:]))
         if args.save:
