@@ -32,3 +32,20 @@ def transform_pose9(rot: torch.Tensor, trans: torch.Tensor, pose: torch.Tensor) 
     """Apply a world transform to pose vectors ``[*, 9]``."""
     r, p = g.pose9_to_rt(pose)
     return g.rt_to_pose9(*g.compose(rot.expand_as(r), trans.expand_as(p), r, p))
+
+
+def chunks_before_and_after(policy, obs: dict, rot: torch.Tensor, trans: torch.Tensor):
+    """Sample a chunk from ``obs`` and from ``obs`` moved by the world transform ``(rot, trans)`` (token poses
+    and, if present, the point cloud), with the same noise; returns ``(actions, actions_moved, trans_err,
+    rot_err)``, the errors between ``actions_moved`` and the transformed ``actions`` (exactly 0 for an
+    SE(3)-equivariant policy)."""
+    moved = dict(obs)
+    moved[schema.TOKEN_POSES] = transform_pose9(rot, trans, obs[schema.TOKEN_POSES])
+    if schema.POINT_CLOUD in obs:
+        moved[schema.POINT_CLOUD] = g.apply(rot, trans, obs[schema.POINT_CLOUD])
+    torch.manual_seed(9)
+    actions = policy.predict_action_chunk(obs)
+    torch.manual_seed(9)
+    actions_moved = policy.predict_action_chunk(moved)
+    trans_err, rot_err = g.pose9_errors(actions_moved[..., :9], transform_pose9(rot, trans, actions[..., :9]))
+    return actions, actions_moved, trans_err, rot_err

@@ -2,7 +2,7 @@
 
 import pytest
 import torch
-from helpers import make_config, random_se3, transform_pose9
+from helpers import chunks_before_and_after, make_config, random_se3, transform_pose9
 
 from lerobot_actionflow import ActionFlowPolicy
 from lerobot_actionflow.core import geometry as g
@@ -125,16 +125,7 @@ def test_policy_with_image_and_point_cloud_tokens():
     assert image_encoder.backbone[0][0].weight.grad.abs().sum() > 0  # the image itself reaches the loss
 
     d_rot, d_trans = random_se3(5)
-    moved = dict(obs)
-    moved["observation.token_poses"] = transform_pose9(d_rot, d_trans, obs["observation.token_poses"])
-    moved["observation.point_cloud"] = g.apply(d_rot, d_trans, obs["observation.point_cloud"])
-    torch.manual_seed(9)
-    actions = policy.predict_action_chunk(obs)
-    torch.manual_seed(9)
-    actions_moved = policy.predict_action_chunk(moved)
-    trans_err, rot_err = g.pose9_errors(
-        actions_moved[..., :9], transform_pose9(d_rot, d_trans, actions[..., :9])
-    )
+    actions, actions_moved, trans_err, rot_err = chunks_before_and_after(policy, obs, d_rot, d_trans)
     assert trans_err.max() < 1e-4 and rot_err.max() < 1e-4
     # The cloud matters: moving it alone changes the actions.
     shifted = dict(obs)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import N_TOKENS, make_config, random_se3, transform_pose9
+from helpers import N_TOKENS, chunks_before_and_after, make_config, random_se3
 from torch import nn
 from torchvision.models.resnet import BasicBlock
 
@@ -123,16 +123,7 @@ def test_policy_with_image_options_is_se3_equivariant(architecture, image_encode
     assert _first_conv(policy.network.image_encoders["observation_images_wrist"]).weight.grad.abs().sum() > 0
 
     d_rot, d_trans = random_se3(2)
-    moved = dict(obs)
-    moved["observation.token_poses"] = transform_pose9(d_rot, d_trans, obs["observation.token_poses"])
-    moved[POINTS] = g.apply(d_rot, d_trans, obs[POINTS])
-    torch.manual_seed(9)
-    actions = policy.predict_action_chunk(obs)
-    torch.manual_seed(9)
-    actions_moved = policy.predict_action_chunk(moved)
-    trans_err, rot_err = g.pose9_errors(
-        actions_moved[..., :9], transform_pose9(d_rot, d_trans, actions[..., :9])
-    )
+    actions, actions_moved, trans_err, rot_err = chunks_before_and_after(policy, obs, d_rot, d_trans)
     assert trans_err.max() < 1e-4, f"translation error {trans_err.max():.2e} m"
     assert rot_err.max() < 1e-4, f"rotation error {rot_err.max():.2e} rad"
     torch.testing.assert_close(actions_moved[..., 9], actions[..., 9], atol=1e-5, rtol=0)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from helpers import make_config, transform_pose9
+from helpers import chunks_before_and_after, make_config
 from scipy.spatial.transform import Rotation
 
 from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy
@@ -215,16 +215,7 @@ def test_policy_with_vn_point_cloud_is_se3_equivariant(architecture, seed):
 
     d_rot = _rotation(20 + seed)
     d_trans = torch.as_tensor(np.random.default_rng(seed).normal(scale=0.5, size=3), dtype=torch.float32)
-    moved = dict(obs)
-    moved["observation.token_poses"] = transform_pose9(d_rot, d_trans, obs["observation.token_poses"])
-    moved[POINTS] = g.apply(d_rot, d_trans, obs[POINTS])
-    torch.manual_seed(9)
-    actions = policy.predict_action_chunk(obs)
-    torch.manual_seed(9)
-    actions_moved = policy.predict_action_chunk(moved)
-    trans_err, rot_err = g.pose9_errors(
-        actions_moved[..., :9], transform_pose9(d_rot, d_trans, actions[..., :9])
-    )
+    actions, actions_moved, trans_err, rot_err = chunks_before_and_after(policy, obs, d_rot, d_trans)
     assert trans_err.max() < 1e-4, f"translation error {trans_err.max():.2e} m"
     assert rot_err.max() < 1e-4, f"rotation error {rot_err.max():.2e} rad"
     torch.testing.assert_close(actions_moved[..., 9], actions[..., 9], atol=1e-5, rtol=0)
