@@ -14,7 +14,7 @@ from pathlib import Path
 
 from paper_plan import Cell, Dataset, Training
 
-from lerobot_actionflow.tools.demo import EVAL_SEED, LOADER_FLAGS, cli
+from lerobot_actionflow.tools.demo import EVAL_SEED, cli, loader_flags
 
 REPLAY_SCRIPT = Path(__file__).resolve().parent / "paper_replay.py"
 
@@ -33,14 +33,16 @@ def record_command(dataset: Dataset, root: Path, workers: int = 1) -> list[str]:
 
 
 def train_command(training: Training, data_root: Path, out: Path) -> list[str]:
-    """``lerobot-train`` as the main job runs it; ActionFlow's cosine decay spans the run (as the README's
-    flags), diffusion keeps LeRobot's scheduler, which spans ``--steps`` by itself."""
+    """``lerobot-train`` as the main job runs it (its loader for the task, as ``--loader auto``); ActionFlow's
+    cosine decay spans the run (as the README's flags), diffusion keeps LeRobot's scheduler, which spans
+    ``--steps`` by itself."""
     steps = training.steps
     decay = [f"--policy.scheduler_decay_steps={steps}"] if training.policy_type == "actionflow" else []
     return [
         cli("lerobot-train"), f"--policy.type={training.policy_type}", f"--policy.device={training.device}",
         "--policy.push_to_hub=false", *training.flags, *decay,
-        f"--dataset.repo_id={repo_id(training.dataset)}", f"--dataset.root={data_root}", *LOADER_FLAGS,
+        f"--dataset.repo_id={repo_id(training.dataset)}", f"--dataset.root={data_root}",
+        *loader_flags(training.dataset.task),
         f"--steps={steps}", f"--batch_size={training.batch_size}",
         f"--save_freq={max(steps // training.checkpoints, 1)}", f"--log_freq={max(steps // 20, 1)}",
         f"--seed={training.seed}", f"--output_dir={out}",

@@ -123,3 +123,27 @@ def test_evaluation_seeds_never_overlap_recording_seeds():
     late = Dataset("Stack", "D0", 2, seed=EVAL_SEED - 3)
     with pytest.raises(ValueError, match="record from a lower --seed"):
         check_plan([replace(cell, dataset=late)])
+
+
+def test_the_loader_is_chosen_per_task_for_the_main_job_and_the_harness(tmp_path):
+    """MugHanging trains on LeRobot's map-style loader (full shuffle), the other tasks on its streaming
+    one, both in the main job (``--loader auto``) and in every harness cell; a wrong loader name is a clear
+    error."""
+    from paper_commands import train_command
+
+    from lerobot_actionflow.tools.demo import MAP_LOADER_FLAGS, STREAMING_LOADER_FLAGS, loader_flags
+
+    assert loader_flags("MugHanging") == MAP_LOADER_FLAGS == ("--num_workers=2",)
+    assert loader_flags("Stack") == STREAMING_LOADER_FLAGS
+    assert loader_flags("MugHanging", "stream") == STREAMING_LOADER_FLAGS
+    assert loader_flags("Stack", "map") == MAP_LOADER_FLAGS
+    with pytest.raises(ValueError, match="loader='shuffled': expected one of auto, stream, map"):
+        loader_flags("Stack", "shuffled")
+    cells = build("generalisation", PROFILES["cpu"])
+    trainings = {c.training.dataset.task: c.training for c in cells if c.training}
+    assert {"MugHanging", "Lightbulb"} <= set(trainings)
+    for task, training in trainings.items():
+        cmd = train_command(training, tmp_path / "data", tmp_path / "out")
+        streamed = "--dataset.streaming=true" in cmd
+        assert streamed == (task != "MugHanging"), (task, cmd)
+        assert ("--num_workers=2" in cmd) == (task == "MugHanging")
