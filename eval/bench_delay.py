@@ -21,7 +21,7 @@ Semantics (one control step = 1 / the env's control rate, 50 ms at 20 Hz), all i
 * Latency compensation off: the first action executed from the new chunk (at step ``t + d``) is its action
   0, planned for step ``t``; each of its actions runs ``d`` steps late. On: the policy skips the ``d``
   actions whose time has passed and starts at action ``d`` (``select_action``'s own skip, see below).
-* The policy measures the inference with its replaceable ``_clock``; the runner takes that clock over and
+* The policy measures the inference with its replaceable ``clock``; the runner takes that clock over and
   reports exactly ``d`` control periods (not wall time, not the unrounded ``delay_s``), so the policy's skip
   ``int(elapsed * control_fps)`` equals the ``d`` steps the simulator ran meanwhile, and every run is
   reproducible.
@@ -31,8 +31,8 @@ Semantics (one control step = 1 / the env's control rate, 50 ms at 20 Hz), all i
   it would on a robot.
 * Action smoothing is an exponential filter over the executed command stream: the continuation actions
   go through the same ``smooth_action`` as the policy's outputs, and the first action of a new chunk is
-  smoothed against the last action actually executed (the runner keeps the policy's filter state,
-  ``_last_action``, on it). Delay 0 executes exactly what ``select_action`` returns.
+  smoothed against the last action actually executed (the runner tells the policy that action with
+  ``set_executed_action``). Delay 0 executes exactly what ``select_action`` returns.
 * The observation history of a chunk is the observations of the last ``n_obs_steps`` ``select_action``
   calls; they are consecutive steps as long as ``n_action_steps >= n_obs_steps`` (2 <= 8 by default).
 
@@ -100,9 +100,9 @@ class DelayedPolicyRunner:
 
     Call :meth:`reset` at every ``env.reset()`` and :meth:`act` once per env step with the current
     observation (a policy batch); it returns the action ``[B, 10]`` to execute at this step. The runner
-    takes over the policy's clock, reads ``policy.last_chunk`` to see when a chunk arrives and writes the
-    policy's smoothing state ``_last_action``; the policy's config (``latency_compensation``,
-    ``action_smoothing``) may change between episodes.
+    takes over the policy's clock, reads ``policy.last_chunk`` to see when a chunk arrives and tells the
+    policy each executed action (``set_executed_action``, its smoothing state); the policy's config
+    (``latency_compensation``, ``action_smoothing``) may change between episodes.
     """
 
     def __init__(self, policy: ActionFlowPolicy, delay: int):
@@ -112,7 +112,7 @@ class DelayedPolicyRunner:
         self.delay = delay
         self._elapsed = reported_elapsed(delay, policy.config.control_fps)
         self._reads = 0
-        policy._clock = self._clock
+        policy.clock = self._clock
         self.reset()
 
     def reset(self) -> None:
@@ -158,7 +158,7 @@ class DelayedPolicyRunner:
         else:
             action = raw
         self._last = action
-        self.policy._last_action = action  # the filter state select_action smooths its next action against
+        self.policy.set_executed_action(action)  # select_action smooths its next action against it
         return action
 
 

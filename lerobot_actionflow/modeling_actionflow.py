@@ -64,7 +64,9 @@ class ActionFlowPolicy(PreTrainedPolicy):
 
     config_class = ActionFlowConfig
     name = "actionflow"
-    _clock = staticmethod(time.perf_counter)  # seconds; replaceable in tests
+    clock = staticmethod(time.perf_counter)
+    """The clock (seconds) latency compensation reads around each chunk's sampling; a runtime that simulates
+    its inference delay (``eval/bench_delay.py``) or a test replaces it with its own."""
     record_flow = False
     """True: ``select_action`` keeps every Euler step of each new chunk in ``last_flow`` (for visualisation);
     the chunk is the same either way."""
@@ -213,7 +215,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
             queue.append(batch[key])
         if not self._action_queue:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._obs_queues.items()}
-            start = self._clock()
+            start = self.clock()
             if self.record_flow:
                 self.last_flow = self.sample_trajectory(history)
                 chunk = self.last_flow.actions[-1]
@@ -227,7 +229,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
                 # reading the clock. (No wait before `start`: work still queued then, such as this
                 # observation's transfer to the device, delays the chunk too and belongs in the span.)
                 self._synchronize()
-                elapsed = self._clock() - start
+                elapsed = self.clock() - start
                 skip = min(int(elapsed * self.config.control_fps), self.config.horizon - 1)
             self._action_queue.extend(chunk[:, skip : skip + self.config.n_action_steps].unbind(1))
         action = self._action_queue.popleft()
@@ -235,6 +237,12 @@ class ActionFlowPolicy(PreTrainedPolicy):
             action = smooth_action(self._last_action, action, self.config.action_smoothing)
         self._last_action = action
         return action
+
+    def set_executed_action(self, action: Tensor) -> None:
+        """Tell the policy which action ``[B, 10]`` the robot executed last, when that was not the one
+        ``select_action`` returned (an asynchronous runtime keeps executing the previous chunk while the next
+        is sampled): ``action_smoothing`` filters the next returned action against it."""
+        self._last_action = action
 
     def _device(self) -> torch.device:
         """The device the network runs on (where its weights are, whatever ``config.device`` says)."""

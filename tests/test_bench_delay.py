@@ -68,7 +68,7 @@ def test_delay_zero_executes_exactly_what_select_action_gives():
     policy = ActionFlowPolicy(
         make_config(latency_compensation=True, action_smoothing=0.3, n_action_steps=3, **TINY)
     ).eval()
-    policy._clock = lambda: 0.0  # instantaneous inference, as in a plain simulation
+    policy.clock = lambda: 0.0  # instantaneous inference, as in a plain simulation
     policy.reset()
     torch.manual_seed(3)
     plain = [policy.select_action(_observation(t)) for t in range(10)]

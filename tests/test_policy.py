@@ -139,7 +139,7 @@ def test_latency_compensation_skips_actions_whose_time_has_passed():
         make_config(latency_compensation=True, control_fps=20.0, n_action_steps=4)
     ).eval()
     ticks = iter([0.0, 0.12])
-    policy._clock = lambda: next(ticks)
+    policy.clock = lambda: next(ticks)
     obs = {k: v[:, -1] for k, v in _batch(2).items() if k in OBS_KEYS}
     torch.manual_seed(5)
     first = policy.select_action(obs)

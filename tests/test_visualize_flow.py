@@ -242,7 +242,7 @@ def test_latency_clock_synchronises_cuda_before_reading_the_end_time(monkeypatch
         calls.append("clock")
         return next(ticks)
 
-    policy._clock = clock
+    policy.clock = clock
     obs = {k: v[:, -1] for k, v in _obs().items()}
     policy.select_action(obs)
     assert calls == ["clock", "clock"]  # a CPU policy: no synchronisation
