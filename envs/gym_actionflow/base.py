@@ -79,6 +79,108 @@ def _close_renderers(renderers: dict[str, mujoco.Renderer]) -> None:
     renderers.clear()
 
 
+# ---------------------------------------------------------------------- the token contract
+# Every gym_actionflow env, whatever simulates it (our MuJoCo scenes or robosuite's environments), speaks
+# through these four functions: the same observation keys and bounds, the same action and its limits.
+
+
+def token_observation_space(
+    n_tokens: int,
+    n_scalars: int,
+    extra: dict[str, spaces.Space] | None = None,
+    pixels: tuple[int, int, int] | None = None,
+) -> spaces.Dict:
+    """``token_poses`` (N, 9), ``token_features`` (N, N + 1 + n_scalars), ``agent_pos`` (10,),
+    ``environment_state`` (9 (N - 1),), the task's ``extra`` keys and, with ``pixels`` (H, W, 3), the wrist
+    image under ``pixels/wrist``."""
+    n = n_tokens
+    pose_high = np.array([POSITION_BOUND] * 3 + [1.0] * 6, dtype=np.float32)
+    feat_high = np.concatenate([np.ones(n), [2 * MAX_FINGER], np.full(n_scalars, SCALAR_BOUND)])
+    feat_low = np.concatenate([np.zeros(n + 1), np.full(n_scalars, -SCALAR_BOUND)])
+    state_high = np.concatenate([pose_high, [2 * MAX_FINGER]]).astype(np.float32)
+    state_low = np.concatenate([-pose_high, [0.0]]).astype(np.float32)
+    obs = {
+        "token_poses": spaces.Box(-np.tile(pose_high, (n, 1)), np.tile(pose_high, (n, 1)), dtype=np.float32),
+        "token_features": spaces.Box(
+            np.tile(feat_low, (n, 1)).astype(np.float32),
+            np.tile(feat_high, (n, 1)).astype(np.float32),
+            dtype=np.float32,
+        ),
+        "agent_pos": spaces.Box(state_low, state_high, dtype=np.float32),
+        "environment_state": spaces.Box(
+            -np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32
+        ),
+        **(extra or {}),
+    }
+    if pixels is not None:
+        obs["pixels"] = spaces.Dict({"wrist": spaces.Box(0, 255, pixels, dtype=np.uint8)})
+    return spaces.Dict(obs)
+
+
+def token_observation(
+    tcp: tuple[np.ndarray, np.ndarray],
+    entities: list[tuple[np.ndarray, np.ndarray]],
+    opening: float,
+    scalars: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """The token keys of an observation: token 0 is the TCP, then one token per entity; each token's feature
+    is its one-hot index, the gripper opening (EEF token only) and the task scalars."""
+    n = 1 + len(entities)
+    poses = np.empty((n, 9), dtype=np.float32)
+    poses[0] = pose9(*tcp)
+    for i, (p, r) in enumerate(entities, start=1):
+        poses[i] = pose9(p, r)
+    scalars = np.asarray(scalars)
+    feats = np.zeros((n, n + 1 + scalars.shape[1]), dtype=np.float32)
+    feats[np.arange(n), np.arange(n)] = 1.0
+    feats[0, n] = opening
+    feats[:, n + 1 :] = scalars
+    return {
+        "token_poses": poses,
+        "token_features": feats,
+        "agent_pos": np.concatenate([poses[0], [opening]]).astype(np.float32),
+        "environment_state": poses[1:].reshape(-1).copy(),
+    }
+
+
+def pose_action_space(low: np.ndarray, high: np.ndarray) -> spaces.Box:
+    """The action: target TCP position within [low, high] (m), two rotation columns, gripper command."""
+    return spaces.Box(
+        np.concatenate([low, -np.ones(6), [-1.0]]).astype(np.float32),
+        np.concatenate([high, np.ones(6), [1.0]]).astype(np.float32),
+        dtype=np.float32,
+    )
+
+
+def parse_pose_action(action, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(position clipped to [low, high], rotation by Gram-Schmidt, gripper in [-1, 1]) of a 10-d action; a
+    wrong shape or a NaN is a ValueError saying what was expected."""
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != (10,):
+        raise ValueError(
+            f"action has shape {a.shape}; expected (10,): target TCP pose [x, y, z, r00, r10, r20, r01, "
+            "r11, r21] in the world frame + gripper command in [-1 open, 1 close]"
+        )
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"action contains NaN or inf: {np.array2string(a, precision=4)}")
+    return np.clip(a[:3], low, high), gram_schmidt(a[3:6], a[6:9]), float(np.clip(a[9], -1.0, 1.0))
+
+
+def rate_limit(
+    prev_pos: np.ndarray, prev_rot: np.ndarray, pos: np.ndarray, rot: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The target (pos, rot) cut to at most ``MAX_STEP_POS`` and ``MAX_STEP_ROT`` from the previous one."""
+    delta = pos - prev_pos
+    dist = np.linalg.norm(delta)
+    if dist > MAX_STEP_POS:
+        pos = prev_pos + delta * (MAX_STEP_POS / dist)
+    rel = rotation_log(prev_rot.T @ rot)
+    angle = np.linalg.norm(rel)
+    if angle > MAX_STEP_ROT:
+        rot = prev_rot @ axis_angle_matrix(rel * (MAX_STEP_ROT / angle))
+    return pos, rot
+
+
 class ManipulationEnv(gym.Env):
     """Franka Panda at a table, controlled by absolute TCP pose targets (see the task classes for details)."""
 
@@ -127,37 +229,14 @@ class ManipulationEnv(gym.Env):
         self._target_rot = HOME_ROT.copy()
         self._q_target = self.home_q.copy()
 
-        n = self.n_tokens
-        self.feature_dim = n + 1 + len(self.scalar_names)
-        pose_high = np.array([POSITION_BOUND] * 3 + [1.0] * 6, dtype=np.float32)
-        feat_high = np.concatenate(
-            [np.ones(n), [2 * MAX_FINGER], np.full(len(self.scalar_names), SCALAR_BOUND)]
+        self.feature_dim = self.n_tokens + 1 + len(self.scalar_names)
+        self.observation_space = token_observation_space(
+            self.n_tokens, len(self.scalar_names), self._extra_observation_spaces(), self._pixel_shape()
         )
-        feat_low = np.concatenate([np.zeros(n + 1), np.full(len(self.scalar_names), -SCALAR_BOUND)])
-        state_high = np.concatenate([pose_high, [2 * MAX_FINGER]]).astype(np.float32)
-        state_low = np.concatenate([-pose_high, [0.0]]).astype(np.float32)
-        obs = {
-            "token_poses": spaces.Box(
-                -np.tile(pose_high, (n, 1)), np.tile(pose_high, (n, 1)), dtype=np.float32
-            ),
-            "token_features": spaces.Box(
-                np.tile(feat_low, (n, 1)).astype(np.float32),
-                np.tile(feat_high, (n, 1)).astype(np.float32),
-                dtype=np.float32,
-            ),
-            "agent_pos": spaces.Box(state_low, state_high, dtype=np.float32),
-            "environment_state": spaces.Box(
-                -np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32
-            ),
-            **self._extra_observation_spaces(),
-        }
-        if obs_mode == "pixels":
-            shape = (self.image_size, self.image_size, 3)
-            obs["pixels"] = spaces.Dict({"wrist": spaces.Box(0, 255, shape, dtype=np.uint8)})
-        self.observation_space = spaces.Dict(obs)
-        low = np.concatenate([WORKSPACE_LOW, -np.ones(6), [-1.0]]).astype(np.float32)
-        high = np.concatenate([WORKSPACE_HIGH, np.ones(6), [1.0]]).astype(np.float32)
-        self.action_space = spaces.Box(low, high, dtype=np.float32)
+        self.action_space = pose_action_space(WORKSPACE_LOW, WORKSPACE_HIGH)
+
+    def _pixel_shape(self) -> tuple[int, int, int] | None:
+        return (self.image_size, self.image_size, 3) if self.obs_mode == "pixels" else None
 
     # ------------------------------------------------------------------ scene
     def _build_scene(self) -> mujoco.MjSpec:
@@ -312,16 +391,8 @@ class ManipulationEnv(gym.Env):
         return obs, {"is_success": success}
 
     def step(self, action):
-        pos, rot, grip = self._parse_action(action)
-        # Rate limit relative to the previous commanded target.
-        delta = pos - self._target_pos
-        dist = np.linalg.norm(delta)
-        if dist > MAX_STEP_POS:
-            pos = self._target_pos + delta * (MAX_STEP_POS / dist)
-        rel = rotation_log(self._target_rot.T @ rot)
-        angle = np.linalg.norm(rel)
-        if angle > MAX_STEP_ROT:
-            rot = self._target_rot @ axis_angle_matrix(rel * (MAX_STEP_ROT / angle))
+        pos, rot, grip = parse_pose_action(action, WORKSPACE_LOW, WORKSPACE_HIGH)
+        pos, rot = rate_limit(self._target_pos, self._target_rot, pos, rot)
         self._target_pos, self._target_rot = pos, rot
         q = self.controller.solve(self._q_target, pos, rot)
         # Joint velocity limit: an IK branch switch can never fling the arm.
@@ -341,42 +412,15 @@ class ManipulationEnv(gym.Env):
         self._show_success(success)
         return self._observation(), success
 
-    def _parse_action(self, action) -> tuple[np.ndarray, np.ndarray, float]:
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (10,):
-            raise ValueError(
-                f"action has shape {a.shape}; expected (10,): target TCP pose [x, y, z, r00, r10, r20, r01, "
-                "r11, r21] in the world frame + gripper command in [-1 open, 1 close]"
-            )
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action contains NaN or inf: {np.array2string(a, precision=4)}")
-        pos = np.clip(a[:3], WORKSPACE_LOW, WORKSPACE_HIGH)
-        rot = gram_schmidt(a[3:6], a[6:9])
-        return pos, rot, float(np.clip(a[9], -1.0, 1.0))
-
     def is_success(self) -> bool:
         """The task's success rule on the current state (no side effects)."""
         return bool(self._check_success())
 
     def _observation(self) -> dict[str, Any]:
-        n = self.n_tokens
-        tcp_pos, tcp_rot = self.tcp_pose()
-        poses = np.empty((n, 9), dtype=np.float32)
-        poses[0] = pose9(tcp_pos, tcp_rot)
-        for i, (p, r) in enumerate(self._entity_poses(), start=1):
-            poses[i] = pose9(p, r)
-        feats = np.zeros((n, self.feature_dim), dtype=np.float32)
-        feats[np.arange(n), np.arange(n)] = 1.0
-        opening = self.gripper_opening()
-        feats[0, n] = opening
-        feats[:, n + 1 :] = self._task_scalars()
-        obs = {
-            "token_poses": poses,
-            "token_features": feats,
-            "agent_pos": np.concatenate([poses[0], [opening]]).astype(np.float32),
-            "environment_state": poses[1:].reshape(-1).copy(),
-            **self._extra_observation(),
-        }
+        obs = token_observation(
+            self.tcp_pose(), self._entity_poses(), self.gripper_opening(), self._task_scalars()
+        )
+        obs.update(self._extra_observation())
         if self.obs_mode == "pixels":
             obs["pixels"] = {"wrist": self._wrist_image()}
         return obs

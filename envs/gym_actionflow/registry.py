@@ -29,6 +29,9 @@ class TaskSpec:
     max_episode_steps: int
     variants: tuple[str, ...]
     """Initial-state distributions (the ``variant`` keyword of every task); the first is the default."""
+    simulator: str = "mujoco"
+    """``mujoco``: our own MjSpec scene (:class:`gym_actionflow.base.ManipulationEnv`); ``robosuite``:
+    robosuite's environment behind the same token contract (:mod:`gym_actionflow.tasks.robomimic`)."""
 
     @property
     def env_id(self) -> str:
@@ -108,5 +111,38 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.mug_hanging:MugHangingExpert",
         400,
         ("train", "test", "scene_moved"),
+    ),
+    # Robomimic's tasks, simulated by robosuite itself (installed by `make robosuite`; imported when made).
+    TaskSpec(
+        "RobosuiteLift",
+        "gym_actionflow.tasks.robomimic:RobosuiteLiftEnv",
+        "gym_actionflow.experts.robomimic:LiftExpert",
+        200,
+        ("D0",),
+        "robosuite",
+    ),
+    TaskSpec(
+        "RobosuiteCan",
+        "gym_actionflow.tasks.robomimic:RobosuiteCanEnv",
+        "gym_actionflow.experts.robomimic:CanExpert",
+        400,
+        ("D0",),
+        "robosuite",
+    ),
+    TaskSpec(
+        "RobosuiteSquare",
+        "gym_actionflow.tasks.robomimic:RobosuiteSquareEnv",
+        "gym_actionflow.experts.robomimic:SquareExpert",
+        400,
+        ("D0",),
+        "robosuite",
+    ),
+    TaskSpec(
+        "RobosuiteToolHang",
+        "gym_actionflow.tasks.robomimic:RobosuiteToolHangEnv",
+        "gym_actionflow.experts.robomimic:ToolHangExpert",
+        700,
+        ("D0",),
+        "robosuite",
     ),
 )

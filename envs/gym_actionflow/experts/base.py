@@ -22,6 +22,7 @@ import numpy as np
 
 from gym_actionflow.base import ManipulationEnv
 from gym_actionflow.geometry import axis_angle_matrix, pose9, rotation_angle, rotation_log
+from gym_actionflow.tasks.robomimic import RobosuiteTaskEnv
 
 OPEN, CLOSE = -1.0, 1.0
 JITTER_POS = 0.002
@@ -40,7 +41,7 @@ class ScriptedExpert:
 
     def __init__(self, env: gym.Env, noise: float = 0.0, seed: int | None = None) -> None:
         self.env: ManipulationEnv = env.unwrapped  # type: ignore[assignment]
-        if not isinstance(self.env, ManipulationEnv):
+        if not isinstance(self.env, ManipulationEnv | RobosuiteTaskEnv):
             raise TypeError(
                 f"{type(self).__name__} drives gym_actionflow envs; got {type(self.env).__name__}"
             )
