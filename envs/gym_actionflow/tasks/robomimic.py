@@ -58,8 +58,7 @@ SETTLE_STEPS = 10
 DEFAULT_KP = {"ik": 400.0, "osc": 600.0}
 """Stiffness of robosuite's controller (its defaults: 50 for joints, 150 for OSC). Measured on a commanded
 path circling 10 cm: OSC at 150 lags 16 mm and settles to 2.2 mm after 2 s, at 600 lags 7 mm and settles to
-0.2 mm;
-IK + joint positions at 400 lags 7.7 mm (one control step) and settles to 0.04 mm."""
+0.2 mm; IK + joint positions at 400 lags 7.7 mm (one control step) and settles to 0.04 mm."""
 
 
 def import_robosuite():
