@@ -8,14 +8,21 @@ PYTHON312 ?= $(shell for c in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python
 	/usr/bin/python3.12; do $$c -c 'import sys; assert sys.version_info[:2] == (3, 12)' 2>/dev/null \
 	&& { echo $$c; break; }; done)
 
-.PHONY: demo test lint bench bench-envs clean
+ROBOSUITE := robosuite==1.5.2
+# robosuite pins mink==0.0.5 and with it numpy<2, which LeRobot cannot share; robosuite imports mink only inside
+# a `try`, so it is installed without its pins, its other dependencies coming from our `robosuite` extra.
+
+.PHONY: demo test lint bench bench-envs robosuite clean
 
 $(VENV)/.installed: pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "Python 3.12 not found: install it or run 'make PYTHON312=/path/to/python3.12'"; exit 1; }
 	test -x $(PY) || $(PYTHON312) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test]"
+	$(PY) -m pip install --quiet -e ".[test,robosuite]"
+	$(PY) -m pip install --quiet --no-deps "$(ROBOSUITE)"
 	touch $@
+
+robosuite: $(VENV)/.installed
 
 demo: $(VENV)/.installed
 	$(PY) -m lerobot_actionflow.tools.demo

@@ -23,6 +23,9 @@ CASES: dict[str, list[tuple[str, int, float]]] = {
     # Test seeds 0 and 1 put the hanger on the right and on the left side of the table.
     "MugHanging": [("train", 0, 0.0), ("train", 1, 1.0), ("test", 0, 0.0), ("test", 1, 1.0),
                    ("scene_moved", 2, 1.0)],
+    # robosuite's tasks: once deterministic, twice at the recording noise.
+    **{name: [("D0", 0, 0.0), ("D0", 1, 1.0), ("D0", 2, 1.0)]
+       for name in ("RobosuiteLift", "RobosuiteCan", "RobosuiteSquare", "RobosuiteToolHang")},
 }
 MAX_STEPS = {"Threading": 300}
 """Episode length the expert must stay within, where tighter than the task's ``max_episode_steps``."""

@@ -151,6 +151,9 @@ class RobosuiteTaskEnv(gym.Env):
             ignore_done=True,
             hard_reset=False,
             reward_shaping=False,
+            # robosuite draws some object sizes (Lift's cube) from this seed when it builds the model: fixed,
+            # so that every env of a task has the same objects.
+            seed=0,
             **self._robosuite_kwargs(),
         )
         # Observations are read from the simulator directly: robosuite's observables cost time every step.
@@ -265,6 +268,13 @@ class RobosuiteTaskEnv(gym.Env):
         state = np.random.default_rng(self.np_random.integers(2**63)).bit_generator.state
         self.rs.rng.bit_generator.state = state
         self.rs.reset()
+        # robosuite's soft reset restores positions and velocities only: clear what else the last episode left
+        # in the simulator (the solver's warm start, the controls), or the same seed would not give the same
+        # rollout.
+        d = self.data
+        for field in (d.qacc_warmstart, d.ctrl, d.qfrc_applied, d.xfrc_applied):
+            field[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
         self._target_pos, self._target_rot = self.tcp_pose()
         self._q_target = self.data.qpos[self._arm.qpos].copy()
         # robosuite drops its objects from a little above their resting place: let them land before the
