@@ -92,6 +92,8 @@ PUBLISHED = (
     ("Coffee", "D2"),
     ("Threading", "D2"),
 )
+ROBOMIMIC = ("RobosuiteLift", "RobosuiteCan", "RobosuiteSquare", "RobosuiteToolHang")
+"""The paper's inference-steps tasks, on robosuite itself."""
 MUG = (("mug_yaw", "slight"),)  # the paper's protocol: slight variations of the mug pose
 MUG_PC = (*MUG, ("hanger_obs", "point_cloud"))
 CPU_UNET = ("--policy.down_dims=[64,128,256]",)
@@ -124,7 +126,8 @@ CPU = Profile(
         Group("Threading", "D2", (100, 200), ("A.1", "DP")),
     ),
     inference_steps=tuple(
-        Group(t, "D0", (100,), ("A.1", "A.1-euclidean", "DP")) for t in ("Threading", "Coffee")
+        Group(t, "D0", (100,), ("A.1", "A.1-euclidean", "DP"))
+        for t in ("Threading", "Coffee", "RobosuiteSquare", "RobosuiteToolHang")
     ),
     generalisation=_generalisation(50, 100, ("A.1", "DP")),
 )
@@ -145,7 +148,8 @@ GPU = Profile(
         *(Group(t, v, (100, 200, 1000), ("A.1", "A.2", "A.3", "DP")) for t, v in PUBLISHED),
     ),
     inference_steps=tuple(
-        Group(t, "D0", (1000,), ("A.1", "A.1-euclidean", "DP")) for t in ("Threading", "Coffee")
+        Group(t, "D0", (1000,), ("A.1", "A.1-euclidean", "DP"))
+        for t in ("Threading", "Coffee", *ROBOMIMIC)
     ),
     generalisation=_generalisation(50, 100, ("A.1", "DP")),
     record_workers=4,

@@ -21,6 +21,33 @@ TITLES = {
 }
 
 
+PUBLISHED_INFERENCE_STEPS = {
+    # The paper's Robomimic table with state observations ("ph" datasets: proficient human demonstrations;
+    # mean of 3 seeds, 50 initial states): success per inference steps IS, DDIM for diffusion (DDPM at 100).
+    "RobosuiteLift": {"Diffusion Policy": {2: 1.00, 5: 1.00, 10: 1.00, 20: 1.00, 100: 1.00},
+                      "Flow Matching": {2: 1.00, 5: 1.00, 10: 0.99, 20: 0.99, 100: 0.99}},
+    "RobosuiteCan": {"Diffusion Policy": {2: 0.93, 5: 0.99, 10: 0.98, 20: 0.99, 100: 0.98},
+                     "Flow Matching": {2: 0.99, 5: 0.98, 10: 0.99, 20: 0.99, 100: 0.99}},
+    "RobosuiteSquare": {"Diffusion Policy": {2: 0.72, 5: 0.90, 10: 0.91, 20: 0.86, 100: 0.91},
+                        "Flow Matching": {2: 0.83, 5: 0.91, 10: 0.87, 20: 0.85, 100: 0.88}},
+    "RobosuiteToolHang": {"Diffusion Policy": {2: 0.51, 5: 0.81, 10: 0.90, 20: 0.90, 100: 0.85},
+                          "Flow Matching": {2: 0.73, 5: 0.85, 10: 0.81, 20: 0.85, 100: 0.87}},
+}  # fmt: skip
+"""Published figures set beside ours (paper, appendix, Robomimic results with state observations)."""
+
+
+def published_table(task: str) -> str | None:
+    """The paper's numbers for ``task`` as a markdown table, or None where it published none."""
+    ref = PUBLISHED_INFERENCE_STEPS.get(task)
+    if ref is None:
+        return None
+    steps = sorted({k for row in ref.values() for k in row})
+    lines = ["| paper (robomimic ph demos, 3 seeds) | " + " | ".join(f"IS={k}" for k in steps) + " |",
+             "|---|" + "---|" * len(steps)]
+    lines += [f"| {name} | " + " | ".join(f"{row[k]:.0%}" for k in steps) + " |" for name, row in ref.items()]
+    return "\n".join(lines)
+
+
 def load_cells(cells_dir: Path) -> list[dict]:
     return [json.loads(p.read_text()) for p in sorted(cells_dir.glob("*.json"))]
 
@@ -148,8 +175,15 @@ def write(results: Path, profile: str, experiment: str, report_command: str) -> 
         f"{first['eval_seeds'][0] if first.get('eval_seeds') else 'n/a'} (no recorded seed is evaluated); "
         f"training: {first['steps']} steps at batch {first['batch_size']} on `{first['device']}`.", "",
     ]  # fmt: skip
+    tasks = {c["group"]: c["task"] for c in cells}
     for group, rows in table.items():
         lines += [f"## {group}", "", markdown_table(rows), ""]
+        published = published_table(tasks[group]) if experiment == "inference-steps" else None
+        if published:
+            lines += [
+                "Beside it, the paper's figures for the task (human demonstrations and robosuite's own "
+                "controller; ours: scripted demonstrations, the cpu profile's training):", "", published, "",
+            ]
     best = aggregate(cells, value="best")
     if best:
         lines += ["## Best of the periodic evaluations during training (the published protocols' number)", ""]
