@@ -147,3 +147,16 @@ def test_the_loader_is_chosen_per_task_for_the_main_job_and_the_harness(tmp_path
         streamed = "--dataset.streaming=true" in cmd
         assert streamed == (task != "MugHanging"), (task, cmd)
         assert ("--num_workers=2" in cmd) == (task == "MugHanging")
+
+
+def test_the_inference_steps_experiment_covers_the_robomimic_tasks_beside_the_papers_figures():
+    from paper_report import published_table
+
+    cpu = {g.task for g in PROFILES["cpu"].inference_steps}
+    gpu = {g.task for g in PROFILES["gpu"].inference_steps}
+    assert {"RobosuiteSquare", "RobosuiteToolHang"} <= cpu
+    assert {"RobosuiteLift", "RobosuiteCan", "RobosuiteSquare", "RobosuiteToolHang"} <= gpu
+    table = published_table("RobosuiteToolHang")
+    assert "| Flow Matching | 73% | 85% | 81% | 85% | 87% |" in table  # the paper's IS = 2 ... 100
+    assert "| Diffusion Policy | 51% |" in table
+    assert published_table("Threading") is None
