@@ -64,8 +64,9 @@ path circling 10 cm: OSC at 150 lags 16 mm and settles to 2.2 mm after 2 s, at 6
 def import_robosuite():
     """robosuite, with its import-time notices (no private macro file, no robosuite_models, no mink) kept
     out of the user's log; a clear error when it is missing."""
+    previous = logging.root.manager.disable
+    logging.disable(logging.WARNING)  # robosuite sets up its logger while importing: quiet only that import
     try:
-        logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
         import robosuite
     except ImportError as err:
         raise ImportError(
@@ -73,6 +74,8 @@ def import_robosuite():
             "robosuite` (or `pip install numba && pip install --no-deps "
             f"robosuite=={ROBOSUITE_VERSION}`; its mink pin would downgrade numpy below what LeRobot needs)"
         ) from err
+    finally:
+        logging.disable(previous)
     for name in ("robosuite_logs", "robosuite"):
         logging.getLogger(name).setLevel(logging.ERROR)
     return robosuite
