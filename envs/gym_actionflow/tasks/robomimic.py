@@ -190,6 +190,10 @@ class RobosuiteTaskEnv(gym.Env):
         self._q_target = self.data.qpos[self._arm.qpos].copy()
         self._cache_refs()
         self._renderers: dict[str, mujoco.Renderer] = {}
+        # robosuite's models keep collision shapes in geom group 0 (drawn green), looks in group 1: as its own
+        # renderer, draw only the visual groups.
+        self._visual_only = mujoco.MjvOption()
+        self._visual_only.geomgroup[0] = 0
         self._exit_hook = None
         self._target_pos, self._target_rot = self.tcp_pose()
 
@@ -336,7 +340,7 @@ class RobosuiteTaskEnv(gym.Env):
             if self._exit_hook is None:
                 self._exit_hook = functools.partial(_close_renderers, self._renderers)
                 atexit.register(self._exit_hook)
-        renderer.update_scene(self.data, camera=camera)
+        renderer.update_scene(self.data, camera=camera, scene_option=self._visual_only)
         return renderer.render().copy()
 
     def render(self) -> np.ndarray | None:
