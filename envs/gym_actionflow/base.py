@@ -143,6 +143,19 @@ def token_observation(
     }
 
 
+def subtree_geoms(model: mujoco.MjModel, body_name: str) -> set[int]:
+    """Ids of every geom in the body ``body_name`` and its descendants."""
+    root = model.body(body_name).id
+    ids = set()
+    for g in range(model.ngeom):
+        b = model.geom_bodyid[g]
+        while b not in (0, root):
+            b = model.body_parentid[b]
+        if b == root:
+            ids.add(g)
+    return ids
+
+
 def pose_action_space(low: np.ndarray, high: np.ndarray) -> spaces.Box:
     """The action: target TCP position within [low, high] (m), two rotation columns, gripper command."""
     return spaces.Box(
@@ -341,15 +354,7 @@ class ManipulationEnv(gym.Env):
 
     def geoms_of(self, body_name: str) -> set[int]:
         """Ids of every geom in a body and its descendants."""
-        root = self.model.body(body_name).id
-        ids = set()
-        for g in range(self.model.ngeom):
-            b = self.model.geom_bodyid[g]
-            while b not in (0, root):
-                b = self.model.body_parentid[b]
-            if b == root:
-                ids.add(g)
-        return ids
+        return subtree_geoms(self.model, body_name)
 
     def touching(self, geoms_a: set[int], geoms_b: set[int]) -> bool:
         for i in range(self.data.ncon):

@@ -38,6 +38,7 @@ from gym_actionflow.base import (
     parse_pose_action,
     pose_action_space,
     rate_limit,
+    subtree_geoms,
     token_observation,
     token_observation_space,
 )
@@ -248,15 +249,7 @@ class RobosuiteTaskEnv(gym.Env):
 
     def geoms_of(self, body_name: str) -> set[int]:
         """Ids of every geom in a body and its descendants."""
-        root = self.model.body(body_name).id
-        ids = set()
-        for g in range(self.model.ngeom):
-            b = self.model.geom_bodyid[g]
-            while b not in (0, root):
-                b = self.model.body_parentid[b]
-            if b == root:
-                ids.add(g)
-        return ids
+        return subtree_geoms(self.model, body_name)
 
     def is_grasped(self, object_geoms: set[int]) -> bool:
         """robosuite's grasp check: both fingers' pads touch the object."""
