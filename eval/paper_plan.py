@@ -134,8 +134,9 @@ def _trainings(profile: Profile, experiment: str, group: Group, models: set[str]
             model = MODELS[name]
             flags = model.flags + profile.policy_flags.get(model.policy_type, ())
             for seed in profile.seeds:
-                yield dataset, Training(dataset, name, steps or profile.steps[experiment], profile.batch_size,
-                                        seed, profile.device, flags, profile.checkpoints)  # fmt: skip
+                n = steps or group.steps or profile.steps[experiment]
+                yield dataset, Training(dataset, name, n, profile.batch_size, seed, profile.device, flags,
+                                        profile.checkpoints)  # fmt: skip
 
 
 def _settings(experiment: str, model: str, profile: Profile) -> list[dict]:

@@ -178,6 +178,10 @@ def write(results: Path, profile: str, experiment: str, report_command: str) -> 
     tasks = {c["group"]: c["task"] for c in cells}
     for group, rows in table.items():
         lines += [f"## {group}", "", markdown_table(rows), ""]
+        steps = sorted({c["steps"] for c in cells if c["group"] == group and c.get("steps")})
+        if steps and steps != [first["steps"]]:
+            trained = " / ".join(map(str, steps))
+            lines += [f"Trained for {trained} steps (this group's setting in the profile).", ""]
         published = published_table(tasks[group]) if experiment == "inference-steps" else None
         if published:
             lines += [

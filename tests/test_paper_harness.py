@@ -160,3 +160,14 @@ def test_the_inference_steps_experiment_covers_the_robomimic_tasks_beside_the_pa
     assert "| Flow Matching | 73% | 85% | 81% | 85% | 87% |" in table  # the paper's IS = 2 ... 100
     assert "| Diffusion Policy | 51% |" in table
     assert published_table("Threading") is None
+
+
+def test_a_group_may_train_longer_than_its_profile_and_the_steps_flag_still_overrides_both():
+    """Tool Hang's demonstrations are 3.6 times Square's, so the cpu profile trains it for as many epochs,
+    not as many steps; ``--steps`` still sets every training of a run."""
+    cpu = PROFILES["cpu"]
+    cells = build("inference-steps", cpu, ["RobosuiteSquare", "RobosuiteToolHang"])
+    steps = {c.dataset.task: c.training.steps for c in cells}
+    assert steps == {"RobosuiteSquare": cpu.steps["inference-steps"], "RobosuiteToolHang": 11_000}
+    forced = build("inference-steps", cpu, ["RobosuiteToolHang"], None, 7)
+    assert {c.training.steps for c in forced} == {7}
