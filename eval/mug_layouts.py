@@ -2,12 +2,15 @@
 to the hanger, for cells of ``eval/ablate.py``'s results file.
 
     python eval/mug_layouts.py --cells panda_physics via_slight --variants test scene_moved
+    python eval/mug_layouts.py --by bearing --cells via_slight_6000 via_slight_6000_seed1
 
 Every layout is rebuilt from its evaluation seed (``env.reset(seed)`` places mug and hanger; no policy is
 run), and the cell's ``failed_seeds`` say which ones failed. The mug's start is expressed in the hanger
 frame (x along the peg's heading, y sideways): the ``train`` demonstrations all start with the mug 0.22-0.34 m
 out along the peg's line and at most 4.5 cm to its side. An SE(3)-equivariant policy sees only these relative
 poses (plus the gripper's), so ``test`` layouts are new to it exactly by how far the mug sits off that line.
+``--by bearing`` bins by the angle between the peg's heading and the mug's direction from the hanger instead
+(the demonstrations: at most 12 degrees).
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ RESULTS = Path(__file__).parent / "results" / "ablate_MugHanging.jsonl"
 EVAL_SEED = 100_000
 SIDE_BINS = (0.0, 0.1, 0.2, 0.25, 0.4)
 """Bins of the mug's sideways distance from the peg's line (m)."""
+BEARING_BINS = (0.0, 35.0, 50.0, 90.0)
+"""Bins of the mug's bearing from the hanger, off the peg's heading (degrees)."""
 
 
 def mug_in_hanger_frame(variant: str, seeds: range, env_kwargs: dict) -> np.ndarray:
@@ -43,17 +48,23 @@ def mug_in_hanger_frame(variant: str, seeds: range, env_kwargs: dict) -> np.ndar
     return np.array(out)
 
 
-def rows_by_side(cell: dict, variant: str) -> list[tuple[str, int, int]]:
-    """(bin label, successes, episodes) per bin of sideways distance, in a cell's ``variant`` evaluation."""
+def rows_by(cell: dict, variant: str, by: str = "side") -> list[tuple[str, int, int]]:
+    """(bin label, successes, episodes) per bin of the mug's sideways distance from the peg's line
+    (``by="side"``) or of its bearing off the peg's heading (``by="bearing"``), in a cell's ``variant``
+    evaluation."""
     result = cell["eval"][variant]
     seeds = range(EVAL_SEED, EVAL_SEED + result["n"])
     failed = set(result["failed_seeds"])
-    side = np.abs(mug_in_hanger_frame(variant, seeds, cell.get("env_kwargs", {}))[:, 1])
+    rel = mug_in_hanger_frame(variant, seeds, cell.get("env_kwargs", {}))
+    if by == "bearing":
+        value, bins, unit = np.degrees(np.arctan2(np.abs(rel[:, 1]), rel[:, 0])), BEARING_BINS, "deg"
+    else:
+        value, bins, unit = np.abs(rel[:, 1]), SIDE_BINS, "m"
     rows = []
-    for low, high in zip(SIDE_BINS[:-1], SIDE_BINS[1:], strict=True):
-        members = [s for s, d in zip(seeds, side, strict=True) if low <= d < high]
+    for low, high in zip(bins[:-1], bins[1:], strict=True):
+        members = [s for s, d in zip(seeds, value, strict=True) if low <= d < high]
         if members:
-            rows.append((f"{low:.2f}-{high:.2f} m", sum(s not in failed for s in members), len(members)))
+            rows.append((f"{low:g}-{high:g} {unit}", sum(s not in failed for s in members), len(members)))
     return rows
 
 
@@ -62,6 +73,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--results", type=Path, default=RESULTS)
     p.add_argument("--cells", nargs="+", required=True, help="cell names in the results file")
     p.add_argument("--variants", nargs="+", default=["test"])
+    p.add_argument("--by", choices=("side", "bearing"), default="side",
+                   help="bin by the mug's distance from the peg's line or its bearing off the peg's heading")
     args = p.parse_args(argv)
     cells = {}
     for line in args.results.read_text().splitlines():
@@ -70,13 +83,17 @@ def main(argv: list[str] | None = None) -> None:
     missing = [name for name in args.cells if name not in cells]
     if missing:
         raise SystemExit(f"cells {missing} are not in {args.results}; it has {sorted(cells)}")
-    print("| cell | layouts | mug's distance from the peg's line | success |")
+    what = (
+        "mug's bearing off the peg's heading"
+        if args.by == "bearing" else "mug's distance from the peg's line"
+    )
+    print(f"| cell | layouts | {what} | success |")
     print("|---|---|---|---|")
     for name in args.cells:
         for variant in args.variants:
             if variant not in cells[name]["eval"]:
                 continue
-            for label, ok, n in rows_by_side(cells[name], variant):
+            for label, ok, n in rows_by(cells[name], variant, args.by):
                 print(f"| {name} | {variant} | {label} | {ok} of {n} ({100 * ok / n:.0f} %) |")
 
 
