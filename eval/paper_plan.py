@@ -126,6 +126,7 @@ class Paths:
 
 def _trainings(profile: Profile, experiment: str, group: Group, models: set[str] | None, steps: int | None):
     """(dataset, training) pairs of a group, for the models asked for."""
+    n = steps or group.steps or profile.steps[experiment]
     for demos in group.demos:
         dataset = Dataset(group.task, group.variant, demos, env_kwargs=group.env_kwargs)
         for name in group.models:
@@ -134,7 +135,6 @@ def _trainings(profile: Profile, experiment: str, group: Group, models: set[str]
             model = MODELS[name]
             flags = model.flags + profile.policy_flags.get(model.policy_type, ())
             for seed in profile.seeds:
-                n = steps or group.steps or profile.steps[experiment]
                 yield dataset, Training(dataset, name, n, profile.batch_size, seed, profile.device, flags,
                                         profile.checkpoints)  # fmt: skip
 
