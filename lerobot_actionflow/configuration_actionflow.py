@@ -8,6 +8,7 @@ from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig, CosineDecayWithWarmupSchedulerConfig
 
+from lerobot_actionflow.core.adaptation import SQUASH_MODES
 from lerobot_actionflow.schema import (
     ACTION,
     ACTION_DIM,
@@ -65,6 +66,9 @@ class ActionFlowConfig(PreTrainedConfig):
     # scale 10 flattens everything beyond ~0.2 m; 3 keeps far entities and far actions apart (measured:
     # eval/results/ablate.md). Checkpoints saved before this field existed load with 1.
     squash_limit: float = 3.0
+    # "axis": the tanh per coordinate (the paper's); "radial": the tanh of the distance from the EEF with the
+    # direction kept, so entities at the same distance look equally far whatever their bearing.
+    squash_mode: str = "axis"
 
     # Flow matching.
     action_space: str = "se3"  # "se3" (paper) or "euclidean" (flat [p, rot6d, gripper] vector)
@@ -148,6 +152,11 @@ class ActionFlowConfig(PreTrainedConfig):
         if self.dim % self.num_heads != 0:
             raise ValueError(
                 f"dim={self.dim}, num_heads={self.num_heads}; dim must be divisible by num_heads"
+            )
+        if self.squash_mode not in SQUASH_MODES:
+            raise ValueError(
+                f"squash_mode={self.squash_mode!r}; expected one of {SQUASH_MODES} (per coordinate, the "
+                "paper's, or of the distance)"
             )
         if self.squash_limit <= 0:
             raise ValueError(f"squash_limit={self.squash_limit}; expected > 0 (1 is the paper's tanh)")

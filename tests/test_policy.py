@@ -74,6 +74,32 @@ def test_squash_limit_bounds_translations_and_keeps_near_ones():
     assert (squash(far)[1] - squash(far)[0]) < 0.01 < (squash(far, 3.0)[1] - squash(far, 3.0)[0])
 
 
+def test_radial_squash_keeps_directions_and_commutes_with_rotations():
+    """The radial squash maps a point to the same direction at distance ``limit * tanh(r / limit)`` (checked
+    against that formula in float64), so it commutes with any rotation about the EEF, unlike the per-axis
+    squash; it is the identity near the EEF, finite with a finite gradient at the EEF itself, and a wrong mode
+    is refused by name."""
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(500, 3, generator=gen, dtype=torch.float64) * 4
+    y = squash(x, 3.0, "radial")
+    r = x.norm(dim=-1)
+    torch.testing.assert_close(y.norm(dim=-1), 3.0 * torch.tanh(r / 3.0))
+    torch.testing.assert_close(torch.nn.functional.cosine_similarity(x, y, dim=-1), torch.ones(500,
+                               dtype=torch.float64))
+    rot = g.random_rotation((), generator=gen, dtype=torch.float64)
+    torch.testing.assert_close(squash(x @ rot.T, 3.0, "radial"), y @ rot.T)
+    assert not torch.allclose(squash(x @ rot.T, 3.0, "axis"), squash(x, 3.0, "axis") @ rot.T, atol=1e-3)
+    near = x[:50] * 0.005  # within about 5 cm * scale of the EEF
+    torch.testing.assert_close(squash(near, 3.0, "radial"), near, rtol=1e-3, atol=0)
+    origin = torch.zeros(1, 3, dtype=torch.float64, requires_grad=True)
+    squash(origin, 3.0, "radial").sum().backward()
+    assert torch.isfinite(origin.grad).all()
+    with pytest.raises(ValueError, match="squash mode='round'"):
+        squash(x, 3.0, "round")
+    with pytest.raises(ValueError, match="squash_mode='round'"):
+        ActionFlowConfig(squash_mode="round")
+
+
 def test_loss_weights_are_applied():
     batch = _batch()
     policy = ActionFlowPolicy(make_config(rotation_loss_weight=0.0, gripper_loss_weight=0.0))

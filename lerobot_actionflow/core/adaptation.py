@@ -48,9 +48,28 @@ class EEFFrame:
         return g.apply_inverse(ref_rot, ref_trans, points) * self.scale
 
 
-def squash(trans: Tensor, limit: float = 1.0) -> Tensor:
-    """Bound scaled translations to ``(-limit, limit)`` for the network, so far-away entities do not dominate:
-    ``limit * tanh(trans / limit)``, close to the identity up to about ``limit / 2``. ``limit = 1`` is the
-    paper's plain ``tanh``, which at the default scale x10 leaves 1 cm of motion 0.4 % of the input's range at
-    0.2 m and ties everything beyond ~0.25 m together."""
-    return limit * torch.tanh(trans / limit)
+SQUASH_MODES = ("axis", "radial")
+"""``axis``: each coordinate squashed alone (the paper's elementwise tanh); ``radial``: the distance squashed
+and the direction kept."""
+
+
+def squash(trans: Tensor, limit: float = 1.0, mode: str = "axis") -> Tensor:
+    """Bound scaled translations ``[..., 3]`` for the network, so far-away entities do not dominate.
+
+    ``mode="axis"``: ``limit * tanh(trans / limit)`` per coordinate, close to the identity up to about
+    ``limit / 2``. ``limit = 1`` is the paper's plain ``tanh``, which at the default scale x10 leaves 1 cm of
+    motion 0.4 % of the input's range at 0.2 m and ties everything beyond ~0.25 m together. It bends
+    directions: a point 0.3 m off along a diagonal lands further out than one 0.3 m straight ahead.
+
+    ``mode="radial"``: ``trans * limit * tanh(|trans| / limit) / |trans|``, the same curve applied to the
+    distance from the EEF, so the direction is kept and the squash commutes with every rotation about the
+    EEF: two entities at the same distance stay at the same distance whatever their bearing.
+    """
+    if mode == "axis":
+        return limit * torch.tanh(trans / limit)
+    if mode == "radial":
+        r = trans.norm(dim=-1, keepdim=True)
+        # tanh(r / l) * l / r -> 1 as r -> 0; the clamp keeps the gradient finite at the EEF itself.
+        r_safe = r.clamp_min(1e-6)
+        return trans * (limit * torch.tanh(r_safe / limit) / r_safe)
+    raise ValueError(f"squash mode={mode!r}; expected one of {SQUASH_MODES}")

@@ -55,6 +55,7 @@ class ActionFlowModel(nn.Module):
             point_cloud=self.has_point_cloud,
             point_encoder=config.point_encoder,
             squash_limit=config.squash_limit,
+            squash_mode=config.squash_mode,
         )
         self.network = ActionFlowNetwork(
             spec,

@@ -69,6 +69,8 @@ class NetworkSpec:
     """``"pointnet"``: plain PointNet, identity token rotation; ``"vn"``: Vector-Neuron PointNet and frame."""
     squash_limit: float = 1.0
     """Translations reach the network as ``squash_limit * tanh(trans / squash_limit)`` (scaled EEF frame)."""
+    squash_mode: str = "axis"
+    """``"axis"``: per coordinate (the paper's); ``"radial"``: the distance (see :func:`squash`)."""
 
 
 class FlowTimeEmbedding(nn.Module):
@@ -87,9 +89,9 @@ class FlowTimeEmbedding(nn.Module):
         return self.mlp(torch.cat([angles.sin(), angles.cos()], dim=-1))
 
 
-def pose_features(rot: Tensor, trans: Tensor, squash_limit: float) -> Tensor:
+def pose_features(rot: Tensor, trans: Tensor, squash_limit: float, squash_mode: str = "axis") -> Tensor:
     """Pose as a 9-vector for the non-IPA variants: squashed translation and the 6D rotation."""
-    return torch.cat([squash(trans, squash_limit), g.matrix_to_rot6d(rot)], dim=-1)
+    return torch.cat([squash(trans, squash_limit, squash_mode), g.matrix_to_rot6d(rot)], dim=-1)
 
 
 class ActionFlowNetwork(nn.Module):
@@ -194,10 +196,10 @@ class ActionFlowNetwork(nn.Module):
         rot, trans = torch.cat(rots, dim=2), torch.cat(transs, dim=2)
         s, rot, trans = s.flatten(1, 2), rot.flatten(1, 2), trans.flatten(1, 2)  # [B, M, ...]
         if self.architecture != "ipa":
-            s = s + self.pose_embed(pose_features(rot, trans, self.spec.squash_limit))
+            s = s + self.pose_embed(self._pose_features(rot, trans))
         if self.architecture == "single_token":
             s = self.obs_pool(s.flatten(1))[:, None]  # [B, 1, C]; its pose is unused
-        squashed = squash(trans, self.spec.squash_limit)
+        squashed = squash(trans, self.spec.squash_limit, self.spec.squash_mode)
         return SceneTokens(s, rot, trans, squashed, self.action_feature + self.action_index_embed)
 
     def forward(
@@ -209,12 +211,16 @@ class ActionFlowNetwork(nn.Module):
         if self.architecture == "ipa":
             s = torch.cat([scene.features, a], dim=1)
             rot = torch.cat([scene.rot, act_rot], dim=1)
-            trans = torch.cat([scene.squashed_trans, squash(act_trans, self.spec.squash_limit)], dim=1)
+            act_squashed = squash(act_trans, self.spec.squash_limit, self.spec.squash_mode)
+            trans = torch.cat([scene.squashed_trans, act_squashed], dim=1)
             out = self.mixer(s, rot, trans)
         else:
-            a = a + self.pose_embed(pose_features(act_rot, act_trans, self.spec.squash_limit))
+            a = a + self.pose_embed(self._pose_features(act_rot, act_trans))
             out = self.mixer(torch.cat([scene.features, a], dim=1))
         return self.head(out[:, -a.shape[1] :])
+
+    def _pose_features(self, rot: Tensor, trans: Tensor) -> Tensor:
+        return pose_features(rot, trans, self.spec.squash_limit, self.spec.squash_mode)
 
 
 def _module_key(feature_key: str) -> str:
