@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from gym_actionflow.base import CONTACT_SOLREF, TABLE_TOP, ManipulationEnv
+from gym_actionflow.base import CONTACT_SOLIMP, CONTACT_SOLREF, TABLE_TOP, ManipulationEnv
 from gym_actionflow.geometry import yaw_matrix, yaw_quat
 from gym_actionflow.placement import Region
 
@@ -47,7 +47,9 @@ LID_DAMPING = 0.005
 LID_LIMIT_SOLREF = CONTACT_SOLREF
 """Softness of the hinge's joint limit, which holds the closed lid above the rim: as stiff as the contacts.
 MuJoCo's default (0.02 s) let the arm press the closed lid 4.7 mm into the holder rim under the adversarial
-sequence (Coffee D0, seed 8); with this, under 1 mm (eval/results/envs_cpu.md)."""
+sequence (Coffee D0, seed 8); with this, under 1 mm (eval/results/envs_cpu.md). Its impedance is the contacts'
+too (``CONTACT_SOLIMP``): with MuJoCo's default (0.9-0.95) the same seed, on another machine's floating point,
+drove the lid 0.35 rad past the limit and 21 mm into the holder walls."""
 BODY_HALF = (0.085, 0.085, 0.5 * (HINGE_Z - 0.010 + HOLDER_FLOOR_Z))
 BODY_FRONT_Y = -0.05
 """The machine housing: a 17 x 17 cm box behind the holder, its top 1 cm below the hinge so the open lid
@@ -101,7 +103,7 @@ def _add_machine(spec: mujoco.MjSpec) -> None:
     lid = machine.add_body(name="lid", pos=(0.0, HINGE_Y, HINGE_Z))
     lid.add_joint(name="lid_hinge", type=mujoco.mjtJoint.mjJNT_HINGE, axis=(1, 0, 0), range=(0.0, LID_OPEN),
                   limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=LID_DAMPING, armature=1e-4,
-                  solref_limit=LID_LIMIT_SOLREF)
+                  solref_limit=LID_LIMIT_SOLREF, solimp_limit=CONTACT_SOLIMP)
     lid.add_geom(name="lid_plate", type=box, size=LID_HALF, pos=(0.0, LID_HALF[1], 0.0), rgba=silver,
                  density=500.0, friction=friction)
     # Visual: a knob on top of the lid.
