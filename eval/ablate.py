@@ -189,7 +189,7 @@ def train(policy: ActionFlowPolicy, batches: Batches, steps: int, batch_size: in
     cfg = policy.config
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
-    opt = torch.optim.AdamW(policy.parameters(), lr=cfg.optimizer_lr, betas=cfg.optimizer_betas,
+    opt = torch.optim.AdamW(policy.get_optim_params(), lr=cfg.optimizer_lr, betas=cfg.optimizer_betas,
                             eps=cfg.optimizer_eps, weight_decay=cfg.optimizer_weight_decay)
     policy.train()
     losses = []
@@ -210,6 +210,7 @@ def train(policy: ActionFlowPolicy, batches: Batches, steps: int, batch_size: in
         loss.backward()
         torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.optimizer_grad_clip_norm)
         opt.step()
+        policy.update()  # as lerobot-train: the weights' moving average, when the config keeps one
         losses.append(loss.item())
         if step % 100 == 0:
             bar.set_postfix(loss=f"{np.mean(losses[-100:]):.3f}")

@@ -126,6 +126,10 @@ class ActionFlowConfig(PreTrainedConfig):
     scheduler_warmup_steps: int = 500
     scheduler_decay_steps: int = 100_000
     scheduler_decay_lr: float = 1e-5
+    # Exponential moving average of the weights, updated after every optimiser step (LeRobot's training loop
+    # calls the policy's `update()`), sampled from at inference: ema = d * ema + (1 - d) * weights, with
+    # d = min(ema_decay, (1 + n) / (10 + n)) after n updates. 0 = off (no second copy of the weights).
+    ema_decay: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
@@ -169,6 +173,8 @@ class ActionFlowConfig(PreTrainedConfig):
             raise ValueError(f"translation_scale={self.translation_scale}; expected > 0")
         if self.control_fps <= 0:
             raise ValueError(f"control_fps={self.control_fps}; expected > 0 (Hz)")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"ema_decay={self.ema_decay}; expected 0 <= decay < 1 (0 = off, 0.999 typical)")
         if not 0.0 <= self.action_smoothing < 1.0:
             raise ValueError(f"action_smoothing={self.action_smoothing}; expected 0 <= alpha < 1")
         for ftype in ("STATE", "ACTION"):

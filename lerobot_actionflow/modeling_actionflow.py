@@ -5,10 +5,12 @@ queue, and applies the runtime options (latency compensation, action smoothing);
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import time
 from collections import deque
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,11 +83,42 @@ class ActionFlowPolicy(PreTrainedPolicy):
         # as a plain attribute so that its network is not registered a second time as `model.network.*`.
         self.network = model.network
         object.__setattr__(self, "model", model)
+        self.ema_network = None
+        """The weights' moving average (``ema_decay`` > 0), which sampling uses outside training mode."""
+        if config.ema_decay > 0:
+            self.ema_network = copy.deepcopy(self.network).requires_grad_(False)
+            self.register_buffer("ema_updates", torch.zeros((), dtype=torch.long))
         self.observation_keys = model.observation_keys
         self.reset()
 
     def get_optim_params(self) -> dict:
-        return self.parameters()
+        return self.network.parameters()  # not the moving average, which `update` sets
+
+    @torch.no_grad()
+    def update(self) -> None:
+        """Move the moving average of the weights toward the trained ones, after each optimiser step
+        (LeRobot's training loop calls it); nothing when ``ema_decay`` is 0."""
+        if self.ema_network is None:
+            return
+        n = int(self.ema_updates)
+        decay = min(self.config.ema_decay, (1 + n) / (10 + n))
+        for avg, w in zip(self.ema_network.parameters(), self.network.parameters(), strict=True):
+            avg.lerp_(w, 1.0 - decay)
+        for avg, b in zip(self.ema_network.buffers(), self.network.buffers(), strict=True):
+            avg.copy_(b)
+        self.ema_updates += 1
+
+    @contextmanager
+    def _sampling_weights(self):
+        """Sample with the moving average when there is one and the policy is not in training mode."""
+        if self.ema_network is None or self.training:
+            yield
+            return
+        self.model.network = self.ema_network
+        try:
+            yield
+        finally:
+            self.model.network = self.network
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: str | Path, *, config=None, **kwargs):
@@ -193,14 +226,16 @@ class ActionFlowPolicy(PreTrainedPolicy):
         ``action_space="se3"``, a ``[B, H, 10]`` tensor for ``"euclidean"``; by default it is drawn from
         torch's global generator.
         """
-        return self.model.sample(self._check_and_stack(batch), noise)
+        with self._sampling_weights():
+            return self.model.sample(self._check_and_stack(batch), noise)
 
     @torch.no_grad()
     def sample_trajectory(self, batch: dict[str, Tensor], noise=None) -> FlowTrajectory:
         """:meth:`predict_action_chunk` with every intermediate state kept (see :class:`FlowTrajectory`):
         under the same seed ``actions[-1]`` is bit for bit the chunk ``predict_action_chunk`` samples
         (tested), as both run ``ActionFlowModel``'s one sampling path."""
-        times, actions = self.model.sample_trajectory(self._check_and_stack(batch), noise)
+        with self._sampling_weights():
+            times, actions = self.model.sample_trajectory(self._check_and_stack(batch), noise)
         return FlowTrajectory(times=times, actions=actions)
 
     @torch.no_grad()

@@ -56,6 +56,7 @@ def test_lerobot_train_runs_actionflow_and_checkpoint_acts(tmp_path):
         "--policy.dim=32",
         "--policy.ipa_layers=1",
         "--policy.transformer_layers=1",
+        "--policy.ema_decay=0.5",  # the weights' moving average, kept through LeRobot's `update()` hook
         f"--dataset.repo_id={REPO_ID}",
         f"--dataset.root={tmp_path / 'ds'}",
         "--steps=4",
@@ -72,6 +73,9 @@ def test_lerobot_train_runs_actionflow_and_checkpoint_acts(tmp_path):
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     policy = ActionFlowPolicy.from_pretrained(ckpt)
     assert policy.config.dim == 32 and policy.config.type == "actionflow"
+    assert int(policy.ema_updates) == 4  # one per optimiser step
+    pairs = zip(policy.ema_network.parameters(), policy.network.parameters(), strict=True)
+    assert any(not torch.equal(a, w) for a, w in pairs)
     assert policy.config.input_features["observation.token_poses"].shape == (3, 9)
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(ckpt))
     ds = LeRobotDataset(REPO_ID, root=tmp_path / "ds")

@@ -125,9 +125,14 @@ def test_padded_actions_are_left_out_of_the_loss():
     assert torch.equal(loss_a, loss_b)
 
 
-def test_save_load_round_trip_is_bit_exact(tmp_path):
+@pytest.mark.parametrize("ema_decay", [0.0, 0.9])
+def test_save_load_round_trip_is_bit_exact(tmp_path, ema_decay):
     torch.manual_seed(0)
-    policy = ActionFlowPolicy(make_config(architecture="ipa", num_inference_steps=3)).eval()
+    policy = ActionFlowPolicy(make_config(architecture="ipa", num_inference_steps=3, ema_decay=ema_decay))
+    if ema_decay:  # a moving average that differs from the weights, and its update count, travel too
+        torch.nn.init.normal_(next(policy.network.parameters()))
+        policy.update()
+    policy.eval()
     obs = {k: v for k, v in _batch().items() if k in OBS_KEYS}
     torch.manual_seed(7)
     before = policy.predict_action_chunk(obs)
@@ -140,6 +145,50 @@ def test_save_load_round_trip_is_bit_exact(tmp_path):
     torch.manual_seed(7)
     after = loaded.predict_action_chunk(obs)
     torch.testing.assert_close(after, before, atol=0, rtol=0)
+
+
+def test_ema_follows_its_recurrence_and_is_sampled_outside_training():
+    """``ema_decay``: the optimiser gets the trained weights only; after each step ``update`` moves the
+    average by ``d = min(decay, (1 + n) / (10 + n))``; in eval mode the chunk is the one the averaged weights
+    alone would sample, in training mode the one of the trained weights."""
+    torch.manual_seed(0)
+    policy = ActionFlowPolicy(make_config(ema_decay=0.9, num_inference_steps=2))
+    assert ActionFlowPolicy(make_config()).ema_network is None
+    trained = {id(p) for p in policy.get_optim_params()}
+    assert trained == {id(p) for p in policy.network.parameters()}
+    assert not any(id(p) in trained for p in policy.ema_network.parameters())
+    expected = [p.detach().clone() for p in policy.network.parameters()]
+    opt = torch.optim.SGD(policy.get_optim_params(), lr=0.05)
+    batch = _batch()
+    for n in range(3):
+        loss, _ = policy.forward(batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        policy.update()
+        d = min(0.9, (1 + n) / (10 + n))
+        weights = policy.network.parameters()
+        expected = [d * e + (1 - d) * w.detach() for e, w in zip(expected, weights, strict=True)]
+    assert int(policy.ema_updates) == 3
+    for e, avg in zip(expected, policy.ema_network.parameters(), strict=True):
+        torch.testing.assert_close(avg, e)
+        assert not avg.requires_grad
+    pairs = zip(policy.ema_network.parameters(), policy.network.parameters(), strict=True)
+    assert any(not torch.equal(a, w) for a, w in pairs)
+
+    obs = {k: v for k, v in batch.items() if k in OBS_KEYS}
+    averaged = ActionFlowPolicy(make_config(num_inference_steps=2)).eval()
+    averaged.network.load_state_dict(policy.ema_network.state_dict())
+    plain = ActionFlowPolicy(make_config(num_inference_steps=2)).eval()
+    plain.network.load_state_dict(policy.network.state_dict())
+    for mode, reference in ((False, averaged), (True, plain)):
+        policy.train(mode)
+        reference.train(mode)
+        torch.manual_seed(3)
+        chunk = policy.predict_action_chunk(obs)
+        torch.manual_seed(3)
+        torch.testing.assert_close(chunk, reference.predict_action_chunk(obs), atol=0, rtol=0)
+    assert policy.model.network is policy.network  # the swap is undone
 
 
 def test_select_action_serves_a_queue_of_n_action_steps():
@@ -272,6 +321,7 @@ def test_validate_features_names_what_is_missing():
         ({"dim": 100, "num_heads": 8}, "dim=100, num_heads=8"),
         ({"action_smoothing": 1.0}, "action_smoothing=1.0"),
         ({"squash_limit": 0.0}, "squash_limit=0.0"),
+        ({"ema_decay": 1.0}, "ema_decay=1.0"),
     ],
 )
 def test_config_rejects_bad_values(kwargs, match):
