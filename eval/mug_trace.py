@@ -1,0 +1,129 @@
+"""Where a MugHanging policy brings the mug's handle, against the scripted expert on the same layouts.
+
+    python eval/mug_trace.py outputs/ablate/ckpt/<cell> --variant test --seeds 100000 100011 100017
+    python eval/mug_trace.py outputs/ablate/ckpt/<cell> --variant test --episodes 20 --path 100011
+
+For each layout (``env.reset(seed)``), the expert (noise 0) and the policy each run one episode. Everything is
+read in the hanger's frame (x along the peg's heading from the pole, y sideways, z up from the pole's foot),
+following the centre of the handle's opening:
+- ``start``: where the mug stands before the grasp;
+- ``lined up``: the first step, after the lift, at which the opening is within 1 cm of the peg's vertical
+  plane (|y| < 1 cm), lifted: the expert gets there above its insertion start (5 cm beyond the peg's tip,
+  ``APPROACH_START``, x = 0.15 m), a policy that carries the mug by a learned displacement instead of to
+  that point arrives short of it or beyond;
+- whether the episode succeeded.
+``--path SEED`` also prints that layout's whole path (every 6th step) for both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gym_actionflow  # noqa: E402
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from gym_actionflow.experts.mug_hanging import APPROACH  # noqa: E402
+from gym_actionflow.tasks.mug_hanging import HOLE_CENTER, PEG_DIRECTION, PEG_TIP  # noqa: E402
+
+from lerobot_actionflow import ActionFlowPolicy, schema  # noqa: E402
+
+EVAL_SEED = 100_000
+APPROACH_START = PEG_TIP + APPROACH * PEG_DIRECTION
+"""Where the expert starts the slide, in the hanger frame: the opening ``APPROACH`` beyond the peg's tip."""
+LINED_UP = 0.01
+"""|y| of the opening (m) that counts as lined up with the peg's vertical plane."""
+LIFTED = 0.10
+"""The opening this high (m, hanger frame) counts as lifted; it starts at about 0.04 m."""
+
+
+def opening_in_hanger_frame(sim) -> np.ndarray:
+    """(3,) the centre of the handle's opening in the hanger's frame."""
+    pos, rot = sim.body_pose(sim.mug_id)
+    h_pos, h_rot = sim.body_pose(sim.hanger_id)
+    return (pos + rot @ HOLE_CENTER - h_pos) @ h_rot
+
+
+def run(env, seed: int, policy: ActionFlowPolicy | None, max_steps: int) -> tuple[np.ndarray, bool]:
+    """One episode by the expert (``policy=None``) or the policy: the opening's path (T, 3) and success."""
+    obs, _ = env.reset(seed=seed)
+    sim = env.unwrapped
+    expert = None
+    if policy is None:
+        expert = gym_actionflow.make_expert(env, noise=0.0, seed=seed)
+        expert.reset()
+    else:
+        policy.reset()
+        torch.manual_seed(seed)
+    path, info = [opening_in_hanger_frame(sim)], {"is_success": False}
+    for _ in range(max_steps):
+        if expert is not None:
+            action = expert.act(obs)
+        else:
+            with torch.no_grad():
+                action = policy.select_action(schema.policy_batch(obs))[0].numpy()
+        obs, _, terminated, truncated, info = env.step(action)
+        path.append(opening_in_hanger_frame(sim))
+        if terminated or truncated:
+            break
+    return np.array(path), bool(info["is_success"])
+
+
+def lined_up(path: np.ndarray) -> np.ndarray | None:
+    """The opening's position at the first lifted step within ``LINED_UP`` of the peg's plane, or None."""
+    hits = np.where((path[:, 2] > LIFTED) & (np.abs(path[:, 1]) < LINED_UP))[0]
+    return path[hits[0]] if len(hits) else None
+
+
+def fmt(p: np.ndarray | None) -> str:
+    return "never" if p is None else f"({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f})"
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--variant", default="test")
+    p.add_argument("--seeds", type=int, nargs="+", default=None)
+    p.add_argument("--episodes", type=int, default=10, help="without --seeds: seeds 100000, 100001, ...")
+    p.add_argument("--mug-yaw", default="slight")
+    p.add_argument("--max-steps", type=int, default=300)
+    p.add_argument("--path", type=int, default=None, help="print this seed's whole path")
+    args = p.parse_args(argv)
+
+    policy = ActionFlowPolicy.from_pretrained(args.checkpoint).eval()
+    env = gym.make("gym_actionflow/MugHanging-v0", variant=args.variant, mug_yaw=args.mug_yaw)
+    seeds = args.seeds or list(range(EVAL_SEED, EVAL_SEED + args.episodes))
+    print(f"{args.checkpoint}, MugHanging {args.variant}: the handle's opening in the hanger frame (m); the "
+          f"expert's insertion start is at x = {APPROACH_START[0]:.3f}\n")
+    print("| seed | start | expert lined up | policy lined up | expert / policy |")
+    print("|---|---|---|---|---|")
+    short = []
+    for seed in seeds:
+        expert_path, expert_ok = run(env, seed, None, args.max_steps)
+        policy_path, policy_ok = run(env, seed, policy, args.max_steps)
+        e, q = lined_up(expert_path), lined_up(policy_path)
+        if e is not None and q is not None:
+            short.append((policy_ok, e[0] - q[0]))
+        ok = "/".join("ok" if s else "fail" for s in (expert_ok, policy_ok))
+        print(f"| {seed} | {fmt(expert_path[0])} | {fmt(e)} | {fmt(q)} | {ok} |")
+        if seed == args.path:
+            for name, path in (("expert", expert_path), ("policy", policy_path)):
+                print(f"\n{name} path, every 6th step (x, y, z):")
+                print("\n".join(f"  {t:3d} {fmt(path[t])}" for t in range(0, len(path), 6)))
+            print()
+    for ok in (True, False):
+        gaps = [g for s, g in short if s == ok]
+        if gaps:
+            mean, median = np.mean(gaps) * 100, np.median(gaps) * 100
+            which = "successes" if ok else "failures"
+            print(f"\npolicy {which}: lined up {mean:+.1f} cm short of the expert along the peg "
+                  f"(mean of {len(gaps)}; median {median:+.1f})")
+    env.close()
+
+
+if __name__ == "__main__":
+    main()

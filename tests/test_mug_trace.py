@@ -1,0 +1,34 @@
+"""eval/mug_trace.py reads the handle's opening in the hanger frame: the expert lines it up where its script
+puts the insertion start."""
+
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from gym_actionflow.tasks.mug_hanging import PEG_DIRECTION, PEG_TIP
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+import mug_trace  # noqa: E402
+from mug_trace import APPROACH_START  # noqa: E402
+
+
+def test_the_expert_lines_the_handle_up_at_its_insertion_start():
+    """On a moved hanger whose mug starts beside the peg (the layouts policies fail)."""
+    env = gym.make("gym_actionflow/MugHanging-v0", variant="test", mug_yaw="slight")
+    path, success = mug_trace.run(env, 100011, None, max_steps=300)
+    env.close()
+    assert success
+    assert path[0][2] < 0.1  # the mug stands on the table, below the peg
+    point = mug_trace.lined_up(path)
+    assert point is not None and abs(point[1]) < mug_trace.LINED_UP
+    # The expert passes over the insertion start (5 cm beyond the tip) before lowering the handle onto it.
+    start = PEG_TIP + 0.05 * PEG_DIRECTION
+    assert np.isclose(APPROACH_START[0], start[0])
+    assert abs(point[0] - start[0]) < 0.02 and point[2] > start[2]
+
+
+def test_lined_up_is_the_first_lifted_step_near_the_peg_plane():
+    path = np.array([[0.3, 0.0, 0.04], [0.25, 0.2, 0.2], [0.2, 0.005, 0.3], [0.15, 0.0, 0.3]])
+    np.testing.assert_array_equal(mug_trace.lined_up(path), path[2])  # not the start, on the table
+    assert mug_trace.lined_up(path[:2]) is None
