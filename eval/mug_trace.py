@@ -27,12 +27,12 @@ import gym_actionflow  # noqa: E402
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from ablate import EVAL_SEED  # noqa: E402
 from gym_actionflow.experts.mug_hanging import APPROACH  # noqa: E402
 from gym_actionflow.tasks.mug_hanging import HOLE_CENTER, PEG_DIRECTION, PEG_TIP  # noqa: E402
 
 from lerobot_actionflow import ActionFlowPolicy, schema  # noqa: E402
 
-EVAL_SEED = 100_000
 APPROACH_START = PEG_TIP + APPROACH * PEG_DIRECTION
 """Where the expert starts the slide, in the hanger frame: the opening ``APPROACH`` beyond the peg's tip."""
 LINED_UP = 0.01
@@ -64,8 +64,7 @@ def run(env, seed: int, policy: ActionFlowPolicy | None, max_steps: int) -> tupl
         if expert is not None:
             action = expert.act(obs)
         else:
-            with torch.no_grad():
-                action = policy.select_action(schema.policy_batch(obs))[0].numpy()
+            action = policy.select_action(schema.policy_batch(obs))[0].numpy()
         obs, _, terminated, truncated, info = env.step(action)
         path.append(opening_in_hanger_frame(sim))
         if terminated or truncated:
