@@ -48,8 +48,11 @@ def opening_in_hanger_frame(sim) -> np.ndarray:
     return (pos + rot @ HOLE_CENTER - h_pos) @ h_rot
 
 
-def run(env, seed: int, policy: ActionFlowPolicy | None, max_steps: int) -> tuple[np.ndarray, bool]:
-    """One episode by the expert (``policy=None``) or the policy: the opening's path (T, 3) and success."""
+def run(
+    env, seed: int, policy: ActionFlowPolicy | None, max_steps: int, hand: list | None = None
+) -> tuple[np.ndarray, bool]:
+    """One episode by the expert (``policy=None``) or the policy: the opening's path (T, 3) and success.
+    With ``hand``, each step appends (gripper command, whether the fingers hold the mug after it)."""
     obs, _ = env.reset(seed=seed)
     sim = env.unwrapped
     expert = None
@@ -67,6 +70,8 @@ def run(env, seed: int, policy: ActionFlowPolicy | None, max_steps: int) -> tupl
             action = policy.select_action(schema.policy_batch(obs))[0].numpy()
         obs, _, terminated, truncated, info = env.step(action)
         path.append(opening_in_hanger_frame(sim))
+        if hand is not None:
+            hand.append((float(action[-1]), bool(sim.mug_held())))
         if terminated or truncated:
             break
     return np.array(path), bool(info["is_success"])
@@ -90,7 +95,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=10, help="without --seeds: seeds 100000, 100001, ...")
     p.add_argument("--mug-yaw", default="slight")
     p.add_argument("--max-steps", type=int, default=300)
-    p.add_argument("--path", type=int, default=None, help="print this seed's whole path")
+    p.add_argument("--path", type=int, default=None,
+                   help="print this seed's whole path, with the gripper command and whether the mug is held")
+    p.add_argument("--every", type=int, default=6, help="with --path: print every N-th step")
     args = p.parse_args(argv)
 
     policy = ActionFlowPolicy.from_pretrained(args.checkpoint).eval()
@@ -102,8 +109,9 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---|---|---|---|")
     short = []
     for seed in seeds:
-        expert_path, expert_ok = run(env, seed, None, args.max_steps)
-        policy_path, policy_ok = run(env, seed, policy, args.max_steps)
+        hands: dict[str, list] = {"expert": [], "policy": []}
+        expert_path, expert_ok = run(env, seed, None, args.max_steps, hands["expert"])
+        policy_path, policy_ok = run(env, seed, policy, args.max_steps, hands["policy"])
         e, q = lined_up(expert_path), lined_up(policy_path)
         if e is not None and q is not None:
             short.append((policy_ok, e[0] - q[0]))
@@ -111,8 +119,10 @@ def main(argv: list[str] | None = None) -> None:
         print(f"| {seed} | {fmt(expert_path[0])} | {fmt(e)} | {fmt(q)} | {ok} |")
         if seed == args.path:
             for name, path in (("expert", expert_path), ("policy", policy_path)):
-                print(f"\n{name} path, every 6th step (x, y, z):")
-                print("\n".join(f"  {t:3d} {fmt(path[t])}" for t in range(0, len(path), 6)))
+                print(f"\n{name} path, every {args.every} steps (x, y, z; gripper command, mug held):")
+                for t in range(0, len(path), args.every):
+                    grip, held = hands[name][t - 1] if t else (float("nan"), False)
+                    print(f"  {t:3d} {fmt(path[t])} {grip:+.2f} {'held' if held else '-'}")
             print()
     for ok in (True, False):
         gaps = [g for s, g in short if s == ok]

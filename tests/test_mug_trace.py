@@ -16,7 +16,8 @@ from mug_trace import APPROACH_START  # noqa: E402
 def test_the_expert_lines_the_handle_up_at_its_insertion_start():
     """On a moved hanger whose mug starts beside the peg (the layouts policies fail)."""
     env = gym.make("gym_actionflow/MugHanging-v0", variant="test", mug_yaw="slight")
-    path, success = mug_trace.run(env, 100011, None, max_steps=300)
+    hand: list = []
+    path, success = mug_trace.run(env, 100011, None, max_steps=300, hand=hand)
     env.close()
     assert success
     assert path[0][2] < 0.1  # the mug stands on the table, below the peg
@@ -26,6 +27,11 @@ def test_the_expert_lines_the_handle_up_at_its_insertion_start():
     start = PEG_TIP + 0.05 * PEG_DIRECTION
     assert np.isclose(APPROACH_START[0], start[0])
     assert abs(point[0] - start[0]) < 0.02 and point[2] > start[2]
+    # One (gripper command, held) per step: the hand closed on the mug where it lines up, open once it hangs.
+    assert len(hand) == len(path) - 1
+    at = int(np.flatnonzero((path == point).all(axis=1))[0])
+    assert hand[at - 1][0] > 0.5 and hand[at - 1][1]
+    assert hand[-1][0] < -0.5 and not hand[-1][1]
 
 
 def test_lined_up_is_the_first_lifted_step_near_the_peg_plane():
