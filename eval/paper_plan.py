@@ -134,6 +134,8 @@ def _trainings(profile: Profile, experiment: str, group: Group, models: set[str]
                 continue
             model = MODELS[name]
             flags = model.flags + profile.policy_flags.get(model.policy_type, ())
+            if model.flow:
+                flags += group.flow_flags
             for seed in profile.seeds:
                 yield dataset, Training(dataset, name, n, profile.batch_size, seed, profile.device, flags,
                                         profile.checkpoints)  # fmt: skip

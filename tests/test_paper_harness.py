@@ -171,3 +171,28 @@ def test_a_group_may_train_longer_than_its_profile_and_the_steps_flag_still_over
     assert steps == {"RobosuiteSquare": cpu.steps["inference-steps"], "RobosuiteToolHang": 11_000}
     forced = build("inference-steps", cpu, ["RobosuiteToolHang"], None, 7)
     assert {c.training.steps for c in forced} == {7}
+
+
+def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_training():
+    """The generalisation experiment trains MugHanging's ActionFlow models with the task's runtime settings
+    (kept in the checkpoint's config, so lerobot-eval uses them) and for 6000 steps on the cpu profile; the
+    diffusion baseline and the Lightbulb cells are left as they were."""
+    from paper_commands import train_command
+    from paper_profiles import MUG_RUNTIME
+
+    from lerobot_actionflow.tools.demo import task_policy_flags
+
+    assert task_policy_flags("MugHanging") == MUG_RUNTIME == ("--policy.action_smoothing=0.5",)
+    assert task_policy_flags("Stack") == ()
+    cpu = PROFILES["cpu"]
+    trainings = {(c.dataset.task, c.training.model, c.dataset.env_kwargs): c.training
+                 for c in build("generalisation", cpu) if c.training}  # fmt: skip
+    mug = [t for (task, _, _), t in trainings.items() if task == "MugHanging"]
+    assert {t.model for t in mug} == {"A.1", "DP"} and len(mug) == 3  # pose A.1 and DP, point cloud A.1
+    for training in trainings.values():
+        cmd = train_command(training, Path("data"), Path("out"))
+        flow_mug = training.dataset.task == "MugHanging" and training.model != "DP"
+        assert all((flag in cmd) == flow_mug for flag in MUG_RUNTIME), (training.model, cmd)
+        expected = 6000 if training.dataset.task == "MugHanging" else cpu.steps["generalisation"]
+        assert training.steps == expected
+    assert all(flag.startswith("--policy.") for flag in MUG_RUNTIME)
