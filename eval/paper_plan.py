@@ -15,6 +15,8 @@ from pathlib import Path
 
 from paper_profiles import MODELS, Group, Profile
 
+from lerobot_actionflow.tools.demo import task_policy_flags
+
 EXPERIMENTS = ("sample-efficiency", "inference-steps", "generalisation")
 
 
@@ -134,8 +136,8 @@ def _trainings(profile: Profile, experiment: str, group: Group, models: set[str]
                 continue
             model = MODELS[name]
             flags = model.flags + profile.policy_flags.get(model.policy_type, ())
-            if model.flow:
-                flags += group.flow_flags
+            if model.flow:  # the task's ActionFlow settings, as the main job passes them (not diffusion's)
+                flags += task_policy_flags(group.task)
             for seed in profile.seeds:
                 yield dataset, Training(dataset, name, n, profile.batch_size, seed, profile.device, flags,
                                         profile.checkpoints)  # fmt: skip

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from lerobot_actionflow.tools.demo import task_policy_flags
-
 
 @dataclass(frozen=True)
 class Model:
@@ -61,9 +59,6 @@ class Group:
     """Replay baselines on the recorded demonstrations, shifted sideways by each offset (generalisation)."""
     steps: int | None = None
     """Training steps for this group instead of the profile's (a task with much longer demonstrations)."""
-    flow_flags: tuple[str, ...] = ()
-    """Extra ``lerobot-train`` flags for this group's ActionFlow models (not diffusion): the task's runtime
-    settings, which the checkpoint's config keeps, so that ``lerobot-eval`` runs with them."""
 
 
 @dataclass(frozen=True)
@@ -107,18 +102,14 @@ INFERENCE_MODELS = ("A.1", "A.1-euclidean", "DP")
 CPU_UNET = ("--policy.down_dims=[64,128,256]",)
 
 
-MUG_RUNTIME = task_policy_flags("MugHanging")
-"""MugHanging's ActionFlow settings, the main job's (``TASK_POLICY_FLAGS``): actions smoothed on SE(3)."""
-
-
 def _generalisation(
     mug_demos: int, bulb_demos: int, models: tuple[str, ...], mug_steps: int | None = None
 ) -> tuple[Group, ...]:
     return (
         Group("MugHanging", "train", (mug_demos,), models, MUG, ("train", "test"),
-              "MugHanging (hanger pose)", steps=mug_steps, flow_flags=MUG_RUNTIME),
+              "MugHanging (hanger pose)", steps=mug_steps),
         Group("MugHanging", "train", (mug_demos,), ("A.1",), MUG_PC, ("train", "test"),
-              "MugHanging (hanger point cloud)", steps=mug_steps, flow_flags=MUG_RUNTIME),
+              "MugHanging (hanger point cloud)", steps=mug_steps),
         Group("Lightbulb", "D0", (bulb_demos,), models, (), ("D0",), "Lightbulb", (0.0, 1.5)),
     )  # fmt: skip
 
@@ -165,8 +156,7 @@ GPU = Profile(
         *(Group(t, v, (100, 200, 1000), ("A.1", "A.2", "A.3", "DP")) for t, v in PUBLISHED),
     ),
     inference_steps=tuple(
-        Group(t, "D0", (1000,), ("A.1", "A.1-euclidean", "DP"))
-        for t in ("Threading", "Coffee", *ROBOMIMIC)
+        Group(t, "D0", (1000,), ("A.1", "A.1-euclidean", "DP")) for t in ("Threading", "Coffee", *ROBOMIMIC)
     ),
     generalisation=_generalisation(50, 100, ("A.1", "DP")),
     record_workers=4,

@@ -178,11 +178,11 @@ def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_traini
     (kept in the checkpoint's config, so lerobot-eval uses them) and for 6000 steps on the cpu profile; the
     diffusion baseline and the Lightbulb cells are left as they were."""
     from paper_commands import train_command
-    from paper_profiles import MUG_RUNTIME
 
     from lerobot_actionflow.tools.demo import task_policy_flags
 
-    assert task_policy_flags("MugHanging") == MUG_RUNTIME == ("--policy.action_smoothing=0.5",)
+    mug_runtime = task_policy_flags("MugHanging")
+    assert mug_runtime == ("--policy.action_smoothing=0.5",)
     assert task_policy_flags("Stack") == ()
     cpu = PROFILES["cpu"]
     trainings = {(c.dataset.task, c.training.model, c.dataset.env_kwargs): c.training
@@ -192,7 +192,7 @@ def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_traini
     for training in trainings.values():
         cmd = train_command(training, Path("data"), Path("out"))
         flow_mug = training.dataset.task == "MugHanging" and training.model != "DP"
-        assert all((flag in cmd) == flow_mug for flag in MUG_RUNTIME), (training.model, cmd)
+        assert all((flag in cmd) == flow_mug for flag in mug_runtime), (training.model, cmd)
         expected = 6000 if training.dataset.task == "MugHanging" else cpu.steps["generalisation"]
         assert training.steps == expected
-    assert all(flag.startswith("--policy.") for flag in MUG_RUNTIME)
+    assert all(flag.startswith("--policy.") for flag in mug_runtime)
