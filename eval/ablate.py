@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, schema
+from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, make_actionflow_pre_post_processors, schema
 
 RUNTIME_FIELDS = ("n_action_steps", "num_inference_steps", "time_schedule", "time_schedule_rate",
                   "action_smoothing")
@@ -155,6 +155,15 @@ def make_policy(data: dict, overrides: dict) -> ActionFlowPolicy:
                   if schema.policy_key(env_key) in shapes}
     cfg.input_features, cfg.output_features = schema.policy_features(env_shapes)
     return ActionFlowPolicy(cfg)
+
+
+def save(policy: ActionFlowPolicy, path: Path) -> None:
+    """Save ``policy`` as ``lerobot-train`` saves a checkpoint: weights and config, and the processor
+    pipelines beside them (ActionFlow normalises nothing, so they need no dataset statistics), so that
+    ``lerobot-eval --policy.path`` loads it."""
+    policy.save_pretrained(path)
+    for pipeline in make_actionflow_pre_post_processors(policy.config):
+        pipeline.save_pretrained(path)
 
 
 def lr_at(step: int, cfg: ActionFlowConfig, total: int) -> float:
@@ -377,7 +386,7 @@ def main(argv: list[str] | None = None) -> None:
         train_s = time.time() - t0
         frames, final_loss = batches.size, float(np.mean(losses[-200:]))
         if args.save:
-            policy.save_pretrained(args.save)
+            save(policy, args.save)
     evals = {}
     for variant in args.eval_variants or [args.variant]:
         evals[variant] = evaluate(policy, args.task, variant, args.eval_episodes, env_kwargs)

@@ -376,3 +376,28 @@ def test_ablation_batches_are_lerobot_dataset_windows(dataset):
         for key in (*keys, "action", "action_is_pad"):
             assert torch.equal(ours[key][row], item[key]), f"{key} differs at frame {frame}"
     assert ours["action_is_pad"][-1].sum() == 15  # the last frame: one real action, then padding
+
+
+def test_ablation_checkpoint_loads_as_lerobot_eval_loads_it(tmp_path):
+    """eval/ablate.py --save writes what lerobot-train writes (weights, config and both processor pipelines),
+    so that lerobot-eval --policy.path loads it; without the pipelines LeRobot refuses the folder."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+    import ablate
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_actionflow import ActionFlowPolicy, schema
+
+    ckpt = tmp_path / "ckpt"
+    files = ["--cache", str(tmp_path / "data"), "--results", str(tmp_path / "r.jsonl"), "--save", str(ckpt)]
+    ablate.main(["--task", "Stack", "--variant", "D0", "--episodes", "1", "--steps", "2",
+                 "--eval-episodes", "1", *files])  # fmt: skip
+    assert {"policy_preprocessor.json", "policy_postprocessor.json"} <= {p.name for p in ckpt.iterdir()}
+    cfg = PreTrainedConfig.from_pretrained(ckpt)
+    pre, post = make_pre_post_processors(cfg, pretrained_path=str(ckpt))
+    policy = ActionFlowPolicy.from_pretrained(ckpt)
+    env = gym.make("gym_actionflow/Stack-v0", variant="D0")
+    obs, _ = env.reset(seed=0)
+    action = post(policy.select_action(pre(schema.policy_batch(obs))))
+    assert action.shape == (1, env.action_space.shape[0])
+    env.close()
