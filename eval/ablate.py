@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from gym_actionflow.tasks.lightbulb import SOCKET_TOP as LIGHTBULB_SOCKET_TOP
 from tqdm import tqdm
 
 from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy, make_actionflow_pre_post_processors, schema
@@ -256,25 +257,38 @@ def evaluate(policy: ActionFlowPolicy, task: str, variant: str, episodes: int, e
 
 
 class Probe:
-    """How a failed episode failed, for the tasks that expose the checks (MugHanging): the mug was never
-    lifted, lifted but its handle never reached the peg, or on the peg but not left hanging."""
+    """How a failed episode failed, for the tasks that expose the checks.
+
+    MugHanging: the mug was never lifted, lifted but its handle never reached the peg, or on the peg but not
+    left hanging. Lightbulb: the cap never came within 3 mm of the socket axis below the rim's top plus 5 mm
+    (``never_aligned``), it did but was never seated (``jammed``: on the rim or a pin on the wall), or it was
+    seated but not left locked (``seated_not_locked``: turned too little, too far, or lifted out again)."""
 
     def __init__(self, env):
         self.env = env
         self.lifted = self.on_peg = False
+        self.aligned = self.seated = False
 
     def update(self) -> None:
         env = self.env
         if hasattr(env, "handle_on_peg"):
             self.lifted |= bool(env.body_pose(env.mug_id)[0][2] > 0.05)
             self.on_peg |= env.handle_on_peg()
+        elif hasattr(env, "bulb_seated"):
+            pos, _ = env.bulb_in_socket()
+            self.aligned |= bool(np.hypot(pos[0], pos[1]) < 0.003 and pos[2] < LIGHTBULB_SOCKET_TOP + 0.005)
+            self.seated |= env.bulb_seated()
 
     def outcome(self, success: bool) -> str:
         if success:
             return "success"
-        if not hasattr(self.env, "handle_on_peg"):
-            return "failure"
-        return "on_peg_not_hung" if self.on_peg else "lifted_missed_peg" if self.lifted else "never_lifted"
+        if hasattr(self.env, "handle_on_peg"):
+            if self.on_peg:
+                return "on_peg_not_hung"
+            return "lifted_missed_peg" if self.lifted else "never_lifted"
+        if hasattr(self.env, "bulb_seated"):
+            return "seated_not_locked" if self.seated else "jammed" if self.aligned else "never_aligned"
+        return "failure"
 
 
 def table(results: Path) -> str:

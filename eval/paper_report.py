@@ -48,8 +48,37 @@ def published_table(task: str) -> str | None:
     return "\n".join(lines)
 
 
+SUPERSEDED = "superseded"
+"""Subfolder of an experiment's cells for cells whose settings the profile no longer uses (kept, with their
+commands, as the record of what those settings measured; never pooled with today's cells)."""
+
+
 def load_cells(cells_dir: Path) -> list[dict]:
     return [json.loads(p.read_text()) for p in sorted(cells_dir.glob("*.json"))]
+
+
+def loader_of(cell: dict) -> str:
+    """Which LeRobot loader a cell's ``lerobot-train`` used, read from its command."""
+    train = cell.get("commands", {}).get("train", "")
+    return "streaming" if "--dataset.streaming=true" in train else "map-style"
+
+
+def superseded_section(folder: Path) -> list[str]:
+    """Markdown lines listing the superseded cells in ``folder`` (none: no lines)."""
+    cells = load_cells(folder) if folder.is_dir() else []
+    if not cells:
+        return []
+    lines = [
+        "## Superseded cells (earlier settings of the profile)", "",
+        f"Kept in [{folder.parent.name}/{folder.name}/]({SUPERSEDED}/) with their commands; not in the "
+        "tables above.", "",
+        "| group | model | layout | training | success |", "|---|---|---|---|---|",
+    ]  # fmt: skip
+    for c in cells:
+        training = f"{c['steps']} steps, {loader_of(c)} loader" if c.get("steps") else ""
+        lines.append(f"| {c['group']} | {series(c)} | {column(c, c['experiment'])} | {training} | "
+                     f"{c['success']:.0%} of {c['n_episodes']} |")
+    return [*lines, ""]
 
 
 def series(cell: dict) -> str:
@@ -194,5 +223,6 @@ def write(results: Path, profile: str, experiment: str, report_command: str) -> 
         for group, rows in best.items():
             lines += [f"### {group}", "", markdown_table(rows), ""]
     lines += [f"![{TITLES[experiment]}]({stem.name}.png)", ""]
+    lines += superseded_section(results / "cells" / profile / experiment / SUPERSEDED)
     stem.with_suffix(".md").write_text("\n".join(lines))
     return stem.with_suffix(".md"), stem.with_suffix(".png")

@@ -74,6 +74,28 @@ def test_a_tiny_cell_of_each_experiment_writes_json_table_and_plot(smoke, experi
         assert "replay 1.5 mm off" in table
 
 
+def test_superseded_cells_are_listed_apart_and_never_pooled_with_todays(smoke, tmp_path):
+    """A cell moved to ``superseded/`` (its settings left the profile) leaves the tables and the plot's
+    seeds, and is listed in its own section with its steps, loader and success."""
+    import shutil
+
+    from paper_report import SUPERSEDED, series, write
+
+    paths, _ = smoke
+    cells_dir = tmp_path / "cells" / "smoke" / "generalisation"
+    shutil.copytree(paths.cells("smoke", "generalisation"), cells_dir)
+    old = dict(json.loads(next(cells_dir.glob("*__A.1__*.json")).read_text()), success=0.123)
+    old["commands"] = dict(old["commands"], train=old["commands"]["train"] + " --dataset.streaming=true")
+    (cells_dir / SUPERSEDED).mkdir()
+    (cells_dir / SUPERSEDED / "old.json").write_text(json.dumps(old))
+    write(tmp_path, "smoke", "generalisation", "python eval/paper.py report --profile smoke")
+    table = (tmp_path / "smoke_generalisation.md").read_text()
+    head, section = table.split("## Superseded cells")
+    assert "12%" not in head and "seeds)" not in head  # not pooled as a second training seed
+    row = f"| {old['group']} | {series(old)} | {old['eval_variant']} layout | {old['steps']} steps, streaming"
+    assert row + " loader | 12% of 1 |" in section
+
+
 def test_a_finished_cell_is_never_run_again(smoke, monkeypatch, capsys):
     """Rerunning an experiment whose cells have their JSON runs no command at all."""
     paths, _ = smoke
@@ -126,9 +148,9 @@ def test_evaluation_seeds_never_overlap_recording_seeds():
 
 
 def test_the_loader_is_chosen_per_task_for_the_main_job_and_the_harness(tmp_path):
-    """MugHanging trains on LeRobot's map-style loader (full shuffle), the other tasks on its streaming
-    one, both in the main job (``--loader auto``) and in every harness cell; a wrong loader name is a clear
-    error."""
+    """MugHanging and Lightbulb train on LeRobot's map-style loader (full shuffle), the other tasks on its
+    streaming one, both in the main job (``--loader auto``) and in every harness cell; a wrong loader name is
+    a clear error."""
     from paper_commands import train_command
 
     from lerobot_actionflow.tools.demo import MAP_LOADER_FLAGS, STREAMING_LOADER_FLAGS, loader_flags
@@ -139,14 +161,15 @@ def test_the_loader_is_chosen_per_task_for_the_main_job_and_the_harness(tmp_path
     assert loader_flags("Stack", "map") == MAP_LOADER_FLAGS
     with pytest.raises(ValueError, match="loader='shuffled': expected one of auto, stream, map"):
         loader_flags("Stack", "shuffled")
-    cells = build("generalisation", PROFILES["cpu"])
+    assert loader_flags("Lightbulb") == MAP_LOADER_FLAGS
+    cells = build("generalisation", PROFILES["cpu"]) + build("sample-efficiency", PROFILES["cpu"])
     trainings = {c.training.dataset.task: c.training for c in cells if c.training}
-    assert {"MugHanging", "Lightbulb"} <= set(trainings)
+    assert {"MugHanging", "Lightbulb", "StackThree"} <= set(trainings)
     for task, training in trainings.items():
         cmd = train_command(training, tmp_path / "data", tmp_path / "out")
-        streamed = "--dataset.streaming=true" in cmd
-        assert streamed == (task != "MugHanging"), (task, cmd)
-        assert ("--num_workers=2" in cmd) == (task == "MugHanging")
+        mapped = task in ("MugHanging", "Lightbulb")
+        assert ("--dataset.streaming=true" in cmd) == (not mapped), (task, cmd)
+        assert ("--num_workers=2" in cmd) == mapped, (task, cmd)
 
 
 def test_the_inference_steps_experiment_covers_the_robomimic_tasks_beside_the_papers_figures():
