@@ -195,35 +195,3 @@ def test_a_1_5_mm_offset_of_the_insertion_makes_it_fail(seed):
         assert not success
         depth = env.bulb_in_socket()[0][2]
         assert depth > SOCKET_TOP - 0.002, "the bulb should be stuck on the rim, not inserted"
-
-
-def insertion_depths(seed: int, miss_prob: float, monkeypatch) -> tuple[bool, np.ndarray]:
-    """The noisy expert's episode with ``MISS_PROB`` set: its success and the bulb's depth above the socket
-    floor at each step where the cap is within 2 mm of the socket axis."""
-    import gym_actionflow.experts.lightbulb as expert_module
-
-    monkeypatch.setattr(expert_module, "MISS_PROB", miss_prob)
-    env = make_env()
-    expert = gym_actionflow.make_expert(env, noise=1.0, seed=seed)
-    depths = []
-
-    def on_step(obs, action):
-        pos = env.unwrapped.bulb_in_socket()[0]
-        if np.hypot(pos[0], pos[1]) < 0.002:
-            depths.append(pos[2])
-
-    episode = gym_actionflow.run_episode(env, expert, seed, on_step=on_step)
-    return episode.success, np.array(depths)
-
-
-@pytest.mark.parametrize("seed", [0, 2])
-def test_recovery_demonstrations_land_on_the_rim_lift_and_still_succeed(seed, monkeypatch):
-    """With the pins turned off the slots on purpose (``MISS_PROB``), the first insertion stops on the rim,
-    the expert lifts the bulb, aligns it again and succeeds (and the same seed succeeds without the miss)."""
-    success, depths = insertion_depths(seed, 1.0, monkeypatch)
-    assert success
-    on_rim = np.flatnonzero(np.abs(depths - SOCKET_TOP) < 0.002)
-    assert on_rim.size, "the missed insertion should stop with the pins on the rim"
-    assert depths[on_rim[0]:].max() > SOCKET_TOP + 0.003, "the expert should lift the bulb off the rim"
-    success, _ = insertion_depths(seed, 0.0, monkeypatch)
-    assert success

@@ -1,6 +1,5 @@
 """Scripted expert for Lightbulb: carry the held bulb over the socket with its pins aligned to the entry
 slots, servo it onto the socket axis, lower it in, then turn it 67 degrees about the socket axis to lock it.
-Some episodes first come down with the pins off the slots on purpose and recover (``MISS_PROB``).
 
 Every TCP target is computed from the bulb pose it should put the bulb at and the bulb's in-hand pose (the
 bulb-in-TCP transform, re-measured before each phase), so it is the bulb, not the hand, that is aligned.
@@ -48,13 +47,6 @@ the hand keeps turning, up to 3 degrees more, until the bulb reaches 67 degrees 
 SEAT_OFFSET = 0.05
 """Scale of the random xy offset of the insertion target (std 0.2 mm at noise 1, truncated at 0.4 mm): the
 clearance is 0.75 mm a side."""
-MISS_PROB = 0.3
-MISS_YAW = (np.deg2rad(5.0), np.deg2rad(9.0))
-"""Recovery demonstrations: at noise 1, 30 % of the episodes (``MISS_PROB * noise``, at most all) make their
-first insertion with the pins turned 5-9 degrees off the slots (either way), so that they land on the rim and
-jam; the expert then lifts the bulb, aligns it again and goes back in, as it does after any jam. Without them
-the demonstrations never show a bulb stuck on the rim, and a policy whose pins come down a few degrees off
-stays pressed there for the rest of the episode (the pins need about 3 degrees of accuracy)."""
 FINE_JITTER = 0.1
 """Scale of the per-step action jitter while the bulb is aligned, inserted and turned (the approach keeps the
 full jitter): at noise 1 the full jitter (2 mm std) is more than the clearance."""
@@ -98,17 +90,14 @@ class LightbulbExpert(ScriptedExpert):
         carry = seat + [0.0, 0.0, CARRY_HEIGHT] + self.offset() * np.array([1.0, 1.0, 0.5])
         yield from self.move_to(*tcp_for_object(carry, entry_rot, grasp))
         seat = seat + np.append(self.offset(SEAT_OFFSET)[:2], 0.0)
-        miss = self.rng.choice([-1.0, 1.0]) * self.rng.uniform(*MISS_YAW)
-        if self.rng.uniform() >= MISS_PROB * self.noise:
-            miss = 0.0
-        for attempt in range(MAX_TRIES + (miss != 0.0)):
+        for attempt in range(MAX_TRIES):
             grasp = self.in_hand()  # re-read how the bulb sits in the hand after the transit / a retry
             self.jitter_scale = 1.0
             yield from self.move_to(*tcp_for_object(seat + [0, 0, PRE_ENTRY], entry_rot, grasp), speed=0.01)
             self.jitter_scale = FINE_JITTER
-            yield from self.align(seat[:2], entry_yaw + (miss if attempt == 0 else 0.0))
+            yield from self.align(seat[:2], entry_yaw)
             seated = yield from self.insert(seat)
-            if seated or attempt == MAX_TRIES - 1 + (miss != 0.0):
+            if seated or attempt == MAX_TRIES - 1:
                 break
             yield from self.move_to(self.cmd_pos + [0, 0, PRE_ENTRY], self.cmd_rot, speed=0.005)
         yield from self.turn(entry_yaw)
