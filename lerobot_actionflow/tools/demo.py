@@ -38,7 +38,8 @@ in order through a 1000-frame shuffle buffer, so a batch mixes a few neighbourin
 moved hanger the map-style loader scored 42-46 % on `test` against 24 % streamed at 3000 steps, and 44 %
 against 36-38 % at 6000 (eval/results/ablate.md, where the seed spread is also measured). On Lightbulb
 (100 demonstrations, 3000 steps) frames drawn uniformly reached 44 % against 14 % in the streaming loader's
-order (32 % for ``lerobot-train`` streamed; eval/results/ablate.md). Stack and Stack Three do well streamed."""
+order (32 % for ``lerobot-train`` streamed; eval/results/ablate.md). Stack and Stack Three do well
+streamed."""
 
 LOADERS = ("auto", "stream", "map")
 
