@@ -63,15 +63,17 @@ def loader_of(cell: dict) -> str:
     return "streaming" if "--dataset.streaming=true" in train else "map-style"
 
 
-def superseded_section(folder: Path) -> list[str]:
-    """Markdown lines listing the superseded cells in ``folder`` (none: no lines)."""
+def superseded_section(results: Path, profile: str, experiment: str) -> list[str]:
+    """Markdown lines listing an experiment's superseded cells (none: no lines), for its table in
+    ``results``."""
+    relative = f"cells/{profile}/{experiment}/{SUPERSEDED}/"
+    folder = results / relative
     cells = load_cells(folder) if folder.is_dir() else []
     if not cells:
         return []
     lines = [
         "## Superseded cells (earlier settings of the profile)", "",
-        f"Kept in [{folder.parent.name}/{folder.name}/]({SUPERSEDED}/) with their commands; not in the "
-        "tables above.", "",
+        f"Kept in [{relative}]({relative}) with their commands; not in the tables above.", "",
         "| group | model | layout | training | success |", "|---|---|---|---|---|",
     ]  # fmt: skip
     for c in cells:
@@ -223,6 +225,6 @@ def write(results: Path, profile: str, experiment: str, report_command: str) -> 
         for group, rows in best.items():
             lines += [f"### {group}", "", markdown_table(rows), ""]
     lines += [f"![{TITLES[experiment]}]({stem.name}.png)", ""]
-    lines += superseded_section(results / "cells" / profile / experiment / SUPERSEDED)
+    lines += superseded_section(results, profile, experiment)
     stem.with_suffix(".md").write_text("\n".join(lines))
     return stem.with_suffix(".md"), stem.with_suffix(".png")
