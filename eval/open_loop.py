@@ -1,6 +1,12 @@
-"""Open-loop error of a trained ActionFlow policy on held-out expert demonstrations.
+"""Open-loop error of a trained policy on held-out expert demonstrations.
 
     python eval/open_loop.py outputs/ablate/ckpt/<cell> --task MugHanging --variant train
+    python eval/open_loop.py outputs/train/<run>/checkpoints/last/pretrained_model --task Stack --variant D0
+
+The checkpoint is an ActionFlow policy (``eval/ablate.py --save`` or ``lerobot-train``) or any other LeRobot
+policy saved by ``lerobot-train`` (Diffusion Policy...), which reads the demonstrations through its own saved
+pre- and post-processors (normalisation) and is compared on the actions it returns (Diffusion Policy: its
+``n_action_steps``, from the current frame on).
 
 For every frame of ``--episodes`` expert episodes recorded from seeds ``--seed``, ``--seed + 1``, ... (never
 the training seeds 0, 1, ...), the policy samples a chunk from the demonstration's own observation history
@@ -18,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +35,34 @@ from ablate import Batches, record  # noqa: E402
 
 from lerobot_actionflow import ActionFlowPolicy  # noqa: E402
 from lerobot_actionflow.core import geometry  # noqa: E402
+
+Predict = Callable[[dict], torch.Tensor]
+
+
+def load_policy(checkpoint: Path) -> tuple[int, int, Predict]:
+    """``(n_obs_steps, horizon, predict)`` of a saved policy: ``predict(batch)`` maps raw demonstration
+    observations ``{key: [B, n_obs, ...]}`` to a chunk of raw actions ``[B, H, 10]``, starting at the current
+    frame. ActionFlow reads its raw token poses; another LeRobot policy goes through its saved processors."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    config = PreTrainedConfig.from_pretrained(checkpoint)
+    if config.type == "actionflow":
+        policy = ActionFlowPolicy.from_pretrained(checkpoint).eval()
+        return policy.config.n_obs_steps, policy.config.horizon, policy.predict_action_chunk
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    policy = get_policy_class(config.type).from_pretrained(checkpoint).eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    keys = set(policy.config.input_features)
+
+    def predict(batch: dict) -> torch.Tensor:
+        missing = keys - set(batch)
+        if missing:
+            raise KeyError(f"the demonstrations lack {sorted(missing)}, which {checkpoint} reads")
+        policy.reset()  # empty observation queues: predict_action_chunk reads the batch's own history
+        return post(policy.predict_action_chunk(pre({k: batch[k] for k in keys})))
+
+    return policy.config.n_obs_steps, policy.config.n_action_steps, predict
 
 
 def phases(data: dict) -> dict[str, np.ndarray]:
@@ -62,16 +97,18 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
 
     torch.set_num_threads(1)
-    policy = ActionFlowPolicy.from_pretrained(args.checkpoint).eval()
+    n_obs, horizon, predict = load_policy(args.checkpoint)
+    if horizon < 8:
+        raise SystemExit(f"{args.checkpoint} returns {horizon} actions per chunk; the table reads steps 0-7")
     env_kwargs = dict(kv.split("=", 1) for kv in args.env_kwarg)
     data = record(args.task, args.variant, args.episodes, 1.0, env_kwargs, args.cache, first_seed=args.seed)
-    batches = Batches(data, policy.config.n_obs_steps, policy.config.horizon)
+    batches = Batches(data, n_obs, horizon)
     batch = batches.at(torch.arange(batches.size))
     demo = batch.pop("action")
     chunks = []
     for s in range(args.samples):
         torch.manual_seed(s)
-        chunks.append(policy.predict_action_chunk(batch))
+        chunks.append(predict(batch))
     chunks = torch.stack(chunks)  # [S, n, H, 10]
     trans_err, rot_err = geometry.pose9_errors(chunks[0, ..., :9], demo[..., :9])  # [n, H] m, rad
     err = trans_err.numpy() * 1000  # mm
@@ -79,13 +116,14 @@ def main(argv: list[str] | None = None) -> None:
     wrong = (chunks[0, ..., 9].sign() != demo[..., 9].sign()).numpy()
     rot_err = np.degrees(rot_err.numpy())
     print(f"{args.checkpoint}: {args.episodes} {args.task} {args.variant} demonstrations, seeds {args.seed}+")
-    print("| frames | n | error step 0 / 3 / 7 (mm) | rotation error step 7 / 15 (deg) "
-          "| rotation step 15 > 20 deg | sample spread step 0 / 7 (mm) | gripper wrong 0-7 |")
+    last = horizon - 1  # ActionFlow's chunk: step 15; Diffusion Policy's executed actions: step 7
+    print(f"| frames | n | error step 0 / 3 / 7 (mm) | rotation error step 7 / {last} (deg) "
+          f"| rotation step {last} > 20 deg | sample spread step 0 / 7 (mm) | gripper wrong 0-7 |")
     print("|---|---|---|---|---|---|---|")
     for name, mask in phases(data).items():
         e, sp, r = (np.median(x[mask], axis=0) for x in (err, spread, rot_err))
-        far = (rot_err[mask, 15] > 20).mean()
-        print(f"| {name} | {mask.sum()} | {e[0]:.1f} / {e[3]:.1f} / {e[7]:.1f} | {r[7]:.1f} / {r[15]:.1f} "
+        far = (rot_err[mask, last] > 20).mean()
+        print(f"| {name} | {mask.sum()} | {e[0]:.1f} / {e[3]:.1f} / {e[7]:.1f} | {r[7]:.1f} / {r[last]:.1f} "
               f"| {far:.1%} | {sp[0]:.1f} / {sp[7]:.1f} | {wrong[mask, :8].mean():.1%} |")
 
 

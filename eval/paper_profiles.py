@@ -26,9 +26,16 @@ class Model:
 # The optimiser of README's training flags: the main job's settings, the cosine decay set to the run's length
 # by the trainer (``--policy.scheduler_decay_steps`` is added per training).
 ACTIONFLOW_FLAGS = ("--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100")
+# LeRobot's Diffusion Policy normalises STATE, VISUAL and ACTION features but has no entry for ENV, so it
+# would read ``observation.environment_state`` (the object poses, in metres) raw: objects that move by a few
+# centimetres barely move its input. The baseline min-max normalises them like the robot state.
+DIFFUSION_NORMALISATION = (
+    '--policy.normalization_mapping={"VISUAL": "MEAN_STD", "STATE": "MIN_MAX", "ENV": "MIN_MAX", '
+    '"ACTION": "MIN_MAX"}'
+)
 # Diffusion Policy's chunk as ActionFlow's (16 actions, 8 executed, 2 observations; LeRobot's own defaults,
 # 64 / 32, are its PushT setting); everything else is LeRobot's default unless a profile shrinks the UNet.
-DIFFUSION_FLAGS = ("--policy.horizon=16", "--policy.n_action_steps=8")
+DIFFUSION_FLAGS = ("--policy.horizon=16", "--policy.n_action_steps=8", DIFFUSION_NORMALISATION)
 
 MODELS: dict[str, Model] = {
     m.name: m

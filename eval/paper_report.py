@@ -63,6 +63,19 @@ def loader_of(cell: dict) -> str:
     return "streaming" if "--dataset.streaming=true" in train else "map-style"
 
 
+def training_of(cell: dict) -> str:
+    """How a cell's policy was trained, read from its ``lerobot-train`` command: steps, loader and, for
+    Diffusion Policy, whether it normalised the object poses (``environment_state``; LeRobot's own mapping
+    leaves them raw)."""
+    if not cell.get("steps"):
+        return ""
+    text = f"{cell['steps']} steps, {loader_of(cell)} loader"
+    train = cell.get("commands", {}).get("train", "")
+    if "--policy.type=diffusion" in train:
+        text += ", object poses " + ("min-max normalised" if '"ENV": "MIN_MAX"' in train else "raw")
+    return text
+
+
 def superseded_section(results: Path, profile: str, experiment: str) -> list[str]:
     """Markdown lines listing an experiment's superseded cells (none: no lines), for its table in
     ``results``."""
@@ -77,8 +90,7 @@ def superseded_section(results: Path, profile: str, experiment: str) -> list[str
         "| group | model | layout | training | success |", "|---|---|---|---|---|",
     ]  # fmt: skip
     for c in cells:
-        training = f"{c['steps']} steps, {loader_of(c)} loader" if c.get("steps") else ""
-        lines.append(f"| {c['group']} | {series(c)} | {column(c, c['experiment'])} | {training} | "
+        lines.append(f"| {c['group']} | {series(c)} | {column(c, c['experiment'])} | {training_of(c)} | "
                      f"{c['success']:.0%} of {c['n_episodes']} |")
     return [*lines, ""]
 

@@ -219,3 +219,28 @@ def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_traini
         assert training.steps == 6000  # MugHanging and Lightbulb both train longer than the profile's 3000
     assert cpu.steps["generalisation"] == 3000
     assert all(flag.startswith("--policy.") for flag in mug_runtime)
+
+
+def test_every_diffusion_training_normalises_the_object_poses_and_the_report_says_which_did(tmp_path):
+    """LeRobot's Diffusion Policy has no normalisation entry for ENV features and would read the object poses
+    raw; every harness training of it min-max normalises them, and a cell's training description (the
+    superseded table) tells a raw-pose cell from a normalised one by its command."""
+    import shlex
+
+    from paper_commands import train_command
+    from paper_report import training_of
+
+    diffusion = [c.training for p in PROFILES.values() for e in EXPERIMENTS for c in build(e, p)
+                 if c.training and c.training.policy_type == "diffusion"]  # fmt: skip
+    assert diffusion
+    for training in diffusion:
+        cmd = train_command(training, tmp_path / "data", tmp_path / "out")
+        mapping = [f for f in cmd if f.startswith("--policy.normalization_mapping=")]
+        assert len(mapping) == 1, cmd
+        assert json.loads(mapping[0].split("=", 1)[1]) == {
+            "VISUAL": "MEAN_STD", "STATE": "MIN_MAX", "ENV": "MIN_MAX", "ACTION": "MIN_MAX"
+        }  # fmt: skip
+        cell = {"steps": training.steps, "commands": {"train": shlex.join(cmd)}}
+        assert training_of(cell).endswith("object poses min-max normalised")
+        raw = [f for f in cmd if not f.startswith("--policy.normalization_mapping=")]
+        assert training_of({"steps": 5, "commands": {"train": shlex.join(raw)}}).endswith("object poses raw")

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_actionflow.env_config import ActionFlowEnvConfig
@@ -154,6 +155,7 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path, wor
 
 KILL_DURING_SECOND_EPISODE = """
 import os, sys
+from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot_actionflow.tools.record import Recipe, record
 
@@ -225,12 +227,19 @@ def test_lerobot_eval_runs_a_checkpoint_through_env_type_actionflow(checkpoint, 
 
 def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(dataset, tmp_path):
     """LeRobot's diffusion policy reads observation.state + observation.environment_state: same data, same
-    commands."""
+    commands, with the benchmark's flags. Those min-max normalise the object poses (LeRobot's default mapping
+    has no ENV entry and would pass them raw), and ``eval/open_loop.py`` reads the checkpoint back through its
+    processors to raw actions."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+    from ablate import Batches
+    from lerobot.policies.factory import make_pre_post_processors
+    from open_loop import load_policy
+    from paper_profiles import DIFFUSION_FLAGS
+
     out = tmp_path / "diffusion"
     cmd = [
         _cli("lerobot-train"), "--policy.type=diffusion", "--policy.device=cpu", "--policy.push_to_hub=false",
-        "--policy.down_dims=[32,64]", "--policy.horizon=16", "--policy.n_action_steps=8",
-        "--policy.num_inference_steps=4",
+        "--policy.down_dims=[32,64]", *DIFFUSION_FLAGS, "--policy.num_inference_steps=4",
         f"--dataset.repo_id={REPO_ID}", f"--dataset.root={dataset}", "--steps=2", "--batch_size=4",
         "--num_workers=0", "--save_freq=2", "--log_freq=1", f"--output_dir={out}",
     ]  # fmt: skip
@@ -241,6 +250,26 @@ def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(datas
     config = json.loads((ckpt / "config.json").read_text())
     assert config["type"] == "diffusion"
     assert "observation.environment_state" in config["input_features"]
+
+    columns = LeRobotDataset(REPO_ID, root=dataset).hf_dataset.with_format("numpy")
+    data = {k: np.stack(columns[k]) for k in SCHEMA}
+    data["episode"] = np.asarray(columns["episode_index"])
+    env_state = torch.from_numpy(data["observation.environment_state"])
+    pre, _ = make_pre_post_processors(PreTrainedConfig.from_pretrained(ckpt), pretrained_path=str(ckpt))
+    state = torch.zeros(len(env_state), 10)
+    seen = pre({"observation.environment_state": env_state, "observation.state": state})
+    normalised = seen["observation.environment_state"]
+    varying = env_state.std(0) > 1e-4  # the cubes' positions (their rotations may barely change)
+    assert normalised.abs().max() <= 1 + 1e-5, "object poses are not min-max normalised"
+    assert (normalised.amax(0) - normalised.amin(0))[varying].min() > 1.99  # each spans [-1, 1]
+
+    n_obs, horizon, predict = load_policy(ckpt)
+    assert (n_obs, horizon) == (2, 8)  # the executed actions, from the current frame
+    batch = Batches(data, n_obs, horizon).at(torch.arange(5))
+    chunk = predict({k: v for k, v in batch.items() if k.startswith("observation.")})
+    assert chunk.shape == (5, 8, 10) and torch.isfinite(chunk).all()
+    low, high = data["action"].min(0), data["action"].max(0)  # the DDPM sample is clipped to the data's range
+    assert ((chunk.numpy() >= low - 1e-4) & (chunk.numpy() <= high + 1e-4)).all()
     cmd = [
         _cli("lerobot-eval"), f"--policy.path={ckpt}", "--policy.device=cpu", "--env.type=actionflow",
         "--env.task=Stack-v0", "--eval.n_episodes=1", "--eval.batch_size=1",
