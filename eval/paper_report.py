@@ -89,7 +89,10 @@ def superseded_section(results: Path, profile: str, experiment: str) -> list[str
         f"Kept in [{relative}]({relative}) with their commands; not in the tables above.", "",
         "| group | model | layout | training | success |", "|---|---|---|---|---|",
     ]  # fmt: skip
-    for c in cells:
+    def order(c: dict) -> tuple:  # a group's rows together, columns in their tables' order
+        return c["group"], series(c), c.get("demos") or 0, c.get("k") or 0, c["eval_variant"]
+
+    for c in sorted(cells, key=order):
         lines.append(f"| {c['group']} | {series(c)} | {column(c, c['experiment'])} | {training_of(c)} | "
                      f"{c['success']:.0%} of {c['n_episodes']} |")
     return [*lines, ""]
