@@ -14,6 +14,8 @@ import statistics
 from collections import defaultdict
 from pathlib import Path
 
+from paper_profiles import DIFFUSION_NORMALISATION
+
 TITLES = {
     "sample-efficiency": "Sample efficiency: success vs demonstrations",
     "inference-steps": "Inference steps: success vs integration / denoising steps",
@@ -72,7 +74,7 @@ def training_of(cell: dict) -> str:
     text = f"{cell['steps']} steps, {loader_of(cell)} loader"
     train = cell.get("commands", {}).get("train", "")
     if "--policy.type=diffusion" in train:
-        text += ", object poses " + ("min-max normalised" if '"ENV": "MIN_MAX"' in train else "raw")
+        text += ", object poses " + ("min-max normalised" if DIFFUSION_NORMALISATION in train else "raw")
     return text
 
 

@@ -155,7 +155,6 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path, wor
 
 KILL_DURING_SECOND_EPISODE = """
 import os, sys
-from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot_actionflow.tools.record import Recipe, record
 
