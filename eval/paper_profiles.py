@@ -43,7 +43,10 @@ MODELS: dict[str, Model] = {
         Model("A.1", "actionflow", (*ACTIONFLOW_FLAGS, "--policy.architecture=ipa")),
         Model("A.2", "actionflow", (*ACTIONFLOW_FLAGS, "--policy.architecture=multi_token")),
         Model("A.3", "actionflow", (*ACTIONFLOW_FLAGS, "--policy.architecture=single_token")),
-        Model("A.1-euclidean", "actionflow", (*ACTIONFLOW_FLAGS, "--policy.action_space=euclidean")),
+        # The Euclidean flow with its velocity in each action's frame, as the SE(3) flow's (EuclideanFlow);
+        # cells before the flag were trained with the EEF-frame velocity and are kept as superseded.
+        Model("A.1-euclidean", "actionflow",
+              (*ACTIONFLOW_FLAGS, "--policy.action_space=euclidean", "--policy.euclidean_frame=action")),
         Model("DP", "diffusion", DIFFUSION_FLAGS, flow=False),
     )
 }

@@ -68,13 +68,16 @@ def loader_of(cell: dict) -> str:
 def training_of(cell: dict) -> str:
     """How a cell's policy was trained, read from its ``lerobot-train`` command: steps, loader and, for
     Diffusion Policy, whether it normalised the object poses (``environment_state``; LeRobot's own mapping
-    leaves them raw)."""
+    leaves them raw); for the Euclidean flow, the frame of its velocity (``--policy.euclidean_frame``)."""
     if not cell.get("steps"):
         return ""
     text = f"{cell['steps']} steps, {loader_of(cell)} loader"
     train = cell.get("commands", {}).get("train", "")
     if "--policy.type=diffusion" in train:
         text += ", object poses " + ("min-max normalised" if DIFFUSION_NORMALISATION in train else "raw")
+    if "--policy.action_space=euclidean" in train:  # before the flag existed, the EEF frame was the only one
+        frame = "each action's frame" if "--policy.euclidean_frame=action" in train else "the EEF frame"
+        text += f", velocity in {frame}"
     return text
 
 

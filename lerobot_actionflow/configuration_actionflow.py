@@ -9,6 +9,7 @@ from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig, CosineDecayWithWarmupSchedulerConfig
 
 from lerobot_actionflow.core.adaptation import SQUASH_MODES
+from lerobot_actionflow.core.flow import EUCLIDEAN_FRAMES
 from lerobot_actionflow.schema import (
     ACTION,
     ACTION_DIM,
@@ -72,6 +73,10 @@ class ActionFlowConfig(PreTrainedConfig):
 
     # Flow matching.
     action_space: str = "se3"  # "se3" (paper) or "euclidean" (flat [p, rot6d, gripper] vector)
+    # Frame of the Euclidean flow's velocity (unused by "se3"). "action": each action's own frame, as the
+    # SE(3) flow's, which an invariant network gives directly; "eef": the flat vector in the EEF frame, which
+    # IPA must learn to turn its output into. Checkpoints saved before this field existed load with "eef".
+    euclidean_frame: str = "action"
     num_inference_steps: int = 4
     time_schedule: str = "uniform"  # "uniform" or "exponential" (shorter steps near the data)
     time_schedule_rate: float = 2.0
@@ -137,6 +142,8 @@ class ActionFlowConfig(PreTrainedConfig):
             raise ValueError(f"architecture={self.architecture!r}; expected one of {ARCHITECTURES}")
         if self.action_space not in ACTION_SPACES:
             raise ValueError(f"action_space={self.action_space!r}; expected one of {ACTION_SPACES}")
+        if self.euclidean_frame not in EUCLIDEAN_FRAMES:
+            raise ValueError(f"euclidean_frame={self.euclidean_frame!r}; expected one of {EUCLIDEAN_FRAMES}")
         if self.time_schedule not in TIME_SCHEDULES:
             raise ValueError(f"time_schedule={self.time_schedule!r}; expected one of {TIME_SCHEDULES}")
         if self.point_encoder not in POINT_ENCODERS:

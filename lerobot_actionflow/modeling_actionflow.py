@@ -24,7 +24,7 @@ from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.model import ActionFlowModel
 from lerobot_actionflow.schema import ACTION, ACTION_DIM, POSE_DIM, POSE_LAYOUT, TOKEN_FEATURES, TOKEN_POSES
 
-LEGACY_DEFAULTS = {"squash_limit": 1.0, "rotation_noise_std": None}
+LEGACY_DEFAULTS = {"squash_limit": 1.0, "rotation_noise_std": None, "euclidean_frame": "eef"}
 """Config fields whose default changed after checkpoints were published, with the value those checkpoints were
 trained with: a saved config that lacks the field gets this value back on loading, not today's default."""
 _HUB_KWARGS = ("force_download", "resume_download", "proxies", "token", "cache_dir", "local_files_only",

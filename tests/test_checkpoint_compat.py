@@ -12,6 +12,7 @@ from fixtures.make_policy_fixtures import CHECKPOINTS, KEY_CONFIGS, LOSS_SEED, S
 from safetensors.torch import load_file
 
 from lerobot_actionflow import ActionFlowPolicy
+from lerobot_actionflow.modeling_actionflow import LEGACY_DEFAULTS
 
 FIXTURES = Path(__file__).parent / "fixtures"
 OBS_KEYS = ("observation.token_poses", "observation.token_features")
@@ -38,11 +39,11 @@ def test_old_checkpoint_loads_every_weight_and_gives_the_same_actions_and_loss(n
 
 def test_state_dict_keys_and_shapes_are_unchanged():
     """Every architecture, action space and input modality keeps the parameter names and shapes that saved
-    checkpoints hold."""
+    checkpoints hold, as such a checkpoint loads (a field added since takes its legacy value)."""
     expected = json.loads((FIXTURES / "state_dict_keys.json").read_text())
     assert set(expected) == set(KEY_CONFIGS)
     for name, overrides in KEY_CONFIGS.items():
-        state = ActionFlowPolicy(config(**overrides)).state_dict()
+        state = ActionFlowPolicy(config(**{**LEGACY_DEFAULTS, **overrides})).state_dict()
         assert {k: list(v.shape) for k, v in state.items()} == expected[name], name
 
 
@@ -78,3 +79,18 @@ def test_a_checkpoint_saved_before_rotation_noise_std_keeps_uniform_rotation_noi
     uniform = ActionFlowPolicy(config(rotation_noise_std=None))
     uniform.save_pretrained(tmp_path / "uniform")
     assert ActionFlowPolicy.from_pretrained(tmp_path / "uniform").config.rotation_noise_std is None
+
+
+def test_a_euclidean_checkpoint_saved_before_euclidean_frame_keeps_the_eef_frame(tmp_path):
+    """euclidean_frame's default became "action" after Euclidean-flow checkpoints were saved without the
+    field, their network reading and writing the flat EEF-frame vector: they load with "eef" (the fixture's
+    actions are pinned by the test above); new ones keep "action", whose network reads 3 numbers fewer."""
+    path = FIXTURES / "policy_multi_token_euclidean"
+    assert "euclidean_frame" not in json.loads((path / "config.json").read_text())
+    old = ActionFlowPolicy.from_pretrained(path)
+    assert old.config.euclidean_frame == "eef" and old.model.flow.frame == "eef"
+    new = ActionFlowPolicy(config(architecture="multi_token", action_space="euclidean"))
+    assert new.model.flow.frame == "action"
+    assert new.model.network.action_input.in_features == old.model.network.action_input.in_features - 3
+    new.save_pretrained(tmp_path / "new")
+    assert ActionFlowPolicy.from_pretrained(tmp_path / "new").model.flow.frame == "action"

@@ -62,18 +62,26 @@ def _observation(seed: int, b: int = 3, t: int = 2):
 
 
 @pytest.mark.parametrize("architecture", ["ipa", "multi_token", "single_token"])
-@pytest.mark.parametrize("action_space", ["se3", "euclidean"])
+@pytest.mark.parametrize(
+    ("action_space", "euclidean_frame"),
+    [("se3", "action"), ("euclidean", "action"), ("euclidean", "eef")],
+    ids=["se3", "euclidean", "euclidean-eef"],
+)
 @pytest.mark.parametrize(
     ("squash_limit", "squash_mode", "rotation_noise_std"),
     [(1.0, "axis", None), (3.0, "axis", None), (3.0, "axis", 0.5), (3.0, "radial", 0.5)],
 )
-def test_policy_is_equivariant(architecture, action_space, squash_limit, squash_mode, rotation_noise_std):
+def test_policy_is_equivariant(
+    architecture, action_space, euclidean_frame, squash_limit, squash_mode, rotation_noise_std
+):
     """Same seed, every observed pose (tokens and the pose part of the state) moved by g: every generated
     action pose moves by g, the gripper command is unchanged (also with the rotation noise concentrated
     around the gripper's orientation: it is drawn in the EEF frame, which moves with g)."""
     torch.manual_seed(0)
-    cfg = make_config(architecture=architecture, action_space=action_space, squash_limit=squash_limit,
-                      squash_mode=squash_mode, rotation_noise_std=rotation_noise_std)
+    cfg = make_config(
+        architecture=architecture, action_space=action_space, euclidean_frame=euclidean_frame,
+        squash_limit=squash_limit, squash_mode=squash_mode, rotation_noise_std=rotation_noise_std,
+    )  # fmt: skip
     policy = ActionFlowPolicy(cfg).eval()
     obs = _observation(1)
     d_rot, d_trans = random_se3(2)

@@ -86,22 +86,57 @@ def test_se3_constant_velocity_integrates_exactly():
     assert torch.equal(x.trans, x0.trans)
 
 
+@pytest.mark.parametrize("frame", ["action", "eef"])
 @pytest.mark.parametrize("start", [0, 2, 5])
-def test_euclidean_euler_with_true_velocity_reaches_data(start):
-    flow = EuclideanFlow(1)
+def test_euclidean_euler_with_true_velocity_reaches_data(start, frame):
+    flow = EuclideanFlow(1, frame)
     x0, x1 = _pair(flow, 5)
     grid = time_grid(6, "exponential", dtype=f64)
     xt, target = flow.interpolate(x0, x1, grid[start].expand(B))
-    assert torch.allclose(target, x1 - x0)
+    assert torch.allclose(flow.step(xt, target, 1.0) - xt, x1 - x0, atol=1e-12), "the straight line's"
     x = integrate(flow, lambda x, t: flow.conditional_velocity(x, x1, t), xt, grid, start=start)
     assert (x - x1).abs().max() < 1e-5
 
 
 def test_euclidean_constant_velocity_integrates_exactly():
-    flow = EuclideanFlow(1)
+    flow = EuclideanFlow(1, "eef")
     x0, v = _pair(flow, 6)
     x = integrate(flow, lambda x, t: v, x0, time_grid(3, dtype=f64))
     assert torch.allclose(x, x0 + v, atol=1e-12)
+
+
+def _turn_state(rot: np.ndarray, x: torch.Tensor) -> torch.Tensor:
+    """A flat Euclidean state ``[p, a1, a2, extras]`` with its three 3-vectors turned by ``rot`` (numpy)."""
+    blocks = x[..., :9].unflatten(-1, (3, 3))
+    turned = torch.einsum("ij,bhkj->bhki", torch.from_numpy(rot), blocks).flatten(-2)
+    return torch.cat([turned, x[..., 9:]], dim=-1)
+
+
+def test_euclidean_action_frame_turns_with_the_scene():
+    """``frame="action"``: turning the whole state by Q (scipy) leaves what the network reads and the
+    conditional velocity it must give unchanged, and turns an Euler step of a given network output by Q; the
+    velocity's norm (hence the loss) is the EEF-frame one."""
+    from scipy.spatial.transform import Rotation
+
+    flow = EuclideanFlow(2, "action")
+    x, x1 = _pair(flow, 7)
+    q = Rotation.random(random_state=3).as_matrix()
+    t = torch.full((B,), 0.3, dtype=f64)
+    assert torch.allclose(flow.network_input(_turn_state(q, x)), flow.network_input(x), atol=1e-12)
+    u = flow.conditional_velocity(x, x1, t)
+    assert torch.allclose(flow.conditional_velocity(_turn_state(q, x), _turn_state(q, x1), t), u, atol=1e-10)
+    assert torch.allclose(u.norm(dim=-1), ((x1 - x) / 0.7).norm(dim=-1), atol=1e-10)
+    v = torch.randn_like(x)
+    stepped = flow.step(_turn_state(q, x), v, 0.25)
+    assert torch.allclose(stepped, _turn_state(q, flow.step(x, v, 0.25)), atol=1e-12)
+    # An exact rotation's 6D part reads as the identity's: its own frame is itself.
+    pose = torch.from_numpy(Rotation.random(B * H, random_state=4).as_matrix()).reshape(B, H, 3, 3)
+    state = flow.from_poses(SE3State(pose, torch.randn(B, H, 3, dtype=f64), torch.zeros(B, H, 2, dtype=f64)))
+    identity6d = torch.tensor([1.0, 0, 0, 0, 1, 0], dtype=f64)
+    assert torch.allclose(flow.network_input(state)[..., :6], identity6d.expand(B, H, 6), atol=1e-12)
+    assert flow.network_input(state).shape[-1] == flow.network_input_dim == 8
+    with pytest.raises(ValueError, match="frame='world'"):
+        EuclideanFlow(1, "world")
 
 
 def test_euclidean_poses_round_trip():
@@ -151,7 +186,9 @@ def test_concentrated_rotation_noise(std):
         SE3Flow(1, rotation_noise_std=0)
 
 
-@pytest.mark.parametrize("flow", [SE3Flow(2), EuclideanFlow(2)], ids=["se3", "euclidean"])
+@pytest.mark.parametrize(
+    "flow", [SE3Flow(2), EuclideanFlow(2), EuclideanFlow(2, "eef")], ids=["se3", "euclidean", "euclidean-eef"]
+)
 def test_each_flow_describes_its_own_velocity_and_network_input(flow):
     """What differs between the flows is said by the flow, so the model never branches on its type: the
     translation, rotation and extra parts tile the velocity, and the network input has its declared width."""

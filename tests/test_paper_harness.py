@@ -244,3 +244,27 @@ def test_every_diffusion_training_normalises_the_object_poses_and_the_report_say
         assert training_of(cell).endswith("object poses min-max normalised")
         raw = [f for f in cmd if not f.startswith("--policy.normalization_mapping=")]
         assert training_of({"steps": 5, "commands": {"train": shlex.join(raw)}}).endswith("object poses raw")
+
+
+def test_the_euclidean_flow_cells_name_the_frame_of_their_velocity(tmp_path):
+    """Every harness training of the Euclidean flow asks for the action-frame velocity by flag, so its cells'
+    commands differ from those trained before the flag (EEF frame, superseded), and the report tells them
+    apart by their commands."""
+    import shlex
+
+    from paper_commands import train_command
+    from paper_report import training_of
+
+    euclidean = [c.training for p in PROFILES.values() for e in EXPERIMENTS for c in build(e, p)
+                 if c.training and c.training.model == "A.1-euclidean"]  # fmt: skip
+    assert euclidean
+    for training in euclidean:
+        cmd = train_command(training, tmp_path / "data", tmp_path / "out")
+        assert "--policy.action_space=euclidean" in cmd and "--policy.euclidean_frame=action" in cmd
+        cell = {"steps": training.steps, "commands": {"train": shlex.join(cmd)}}
+        assert training_of(cell).endswith("velocity in each action's frame")
+        old = [f for f in cmd if f != "--policy.euclidean_frame=action"]
+        assert training_of({"steps": 5, "commands": {"train": shlex.join(old)}}).endswith("the EEF frame")
+    a1 = next(c.training for c in build("inference-steps", PROFILES["cpu"]) if c.training.model == "A.1")
+    assert "velocity" not in training_of({"steps": 5, "commands": {"train": shlex.join(
+        train_command(a1, tmp_path / "data", tmp_path / "out"))}})

@@ -156,20 +156,40 @@ class SE3Flow:
         return x.trans.shape[0]
 
 
+EUCLIDEAN_FRAMES = ("action", "eef")
+
+
 class EuclideanFlow:
     """Rectified flow on the flat action vector ``[p (3), rot6d (6), extras (m)]`` (paper appendix).
 
-    Noise is standard normal in every dimension. The network sees the state as poses through
-    :meth:`to_poses`, whose rotation is the Gram-Schmidt frame of the current 6D part.
+    Noise is standard normal in every dimension, and the path is the straight line ``x_t = (1 - t) x_0 + t
+    x_1`` in the policy's EEF frame. The network sees the state as poses through :meth:`to_poses`, whose
+    rotation ``R`` is the Gram-Schmidt frame of the current 6D part. ``frame`` says in which frame the
+    network reads the 6D part and writes the velocity:
+
+    * ``"action"``: each action's own frame ``R``, as the SE(3) flow's velocity is. The velocity of each of
+      the three 3-vectors (the position and the two 6D columns) is ``R`` times the network's output, and the
+      network reads the 6D columns as ``R^T a_1, R^T a_2`` (their lengths and angle), which no turn of the
+      whole scene changes. An invariant network (IPA) can then give the velocity directly.
+    * ``"eef"``: the flat vector in the EEF frame, in and out. An invariant network must then work out
+      its token's orientation from the 6D values it is fed to turn its output into the EEF frame
+      (checkpoints saved before the choice existed are this).
+
+    The two describe the same straight-line flow (the norm of a velocity, hence the loss, is the same in
+    either frame); they differ only in what the network must learn.
     """
 
-    def __init__(self, extra_dim: int):
+    def __init__(self, extra_dim: int, frame: str = "action"):
+        if frame not in EUCLIDEAN_FRAMES:
+            raise ValueError(f"euclidean frame={frame!r}; expected one of {EUCLIDEAN_FRAMES}")
         self.extra_dim = extra_dim
+        self.frame = frame
         self.velocity_dim = 9 + extra_dim
         self.velocity_parts = {"translation": slice(0, 3), "rotation": slice(3, 9), "extra": slice(9, None)}
         """Which slice of a velocity ``[..., 9 + m]`` is translation, rotation (6D) and extras."""
-        self.network_input_dim = self.velocity_dim
-        """The network sees the whole flat state of each action as features (and its poses as poses)."""
+        self.network_input_dim = self.velocity_dim - 3 if frame == "action" else self.velocity_dim
+        """What the network sees of each action besides its pose: the 6D part in the action's frame and the
+        extras (``"action"``), or the whole flat state (``"eef"``)."""
 
     def noise(
         self,
@@ -181,15 +201,28 @@ class EuclideanFlow:
     ) -> Tensor:
         return torch.randn(batch, horizon, self.velocity_dim, generator=generator, device=device, dtype=dtype)
 
+    def _turn(self, x: Tensor, vec: Tensor, inverse: bool = False) -> Tensor:
+        """``vec``'s three 3-vectors (position, 6D columns) turned from the frame of the actions ``x`` into
+        the EEF frame (``R v``), or back (``inverse``: ``R^T v``); the extras are left as they are. Identity
+        for ``frame="eef"``."""
+        if self.frame == "eef":
+            return vec
+        rot = g.rot6d_to_matrix(x[..., 3:9])  # [B, H, 3, 3]
+        blocks = vec[..., :9].unflatten(-1, (3, 3))  # [B, H, 3 vectors, 3]
+        pattern = "bhji,bhkj->bhki" if inverse else "bhij,bhkj->bhki"
+        turned = torch.einsum(pattern, rot, blocks).flatten(-2)
+        return torch.cat([turned, vec[..., 9:]], dim=-1)
+
     def interpolate(self, x0: Tensor, x1: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         tb = t[:, None, None]
-        return (1 - tb) * x0 + tb * x1, x1 - x0
+        xt = (1 - tb) * x0 + tb * x1
+        return xt, self._turn(xt, x1 - x0, inverse=True)
 
     def conditional_velocity(self, x: Tensor, x1: Tensor, t: Tensor) -> Tensor:
-        return (x1 - x) / (1 - t)[:, None, None]
+        return self._turn(x, (x1 - x) / (1 - t)[:, None, None], inverse=True)
 
     def step(self, x: Tensor, velocity: Tensor, dt: float | Tensor) -> Tensor:
-        return x + dt * velocity
+        return x + dt * self._turn(x, velocity)
 
     def to_poses(self, x: Tensor) -> SE3State:
         return SE3State(g.rot6d_to_matrix(x[..., 3:9]), x[..., :3], x[..., 9:])
@@ -198,7 +231,9 @@ class EuclideanFlow:
         return torch.cat([x.trans, g.matrix_to_rot6d(x.rot), x.extra], dim=-1)
 
     def network_input(self, x: Tensor) -> Tensor:
-        return x
+        if self.frame == "eef":
+            return x
+        return self._turn(x, x, inverse=True)[..., 3:]  # the 6D columns in the action's frame, the extras
 
     def batch_size(self, x: Tensor) -> int:
         return x.shape[0]
@@ -208,14 +243,20 @@ Flow = SE3Flow | EuclideanFlow
 VelocityFn = Callable[[object, Tensor], Tensor]
 
 
-def make_flow(action_space: str, extra_dim: int, rotation_noise_std: float | None = None) -> Flow:
+def make_flow(
+    action_space: str,
+    extra_dim: int,
+    rotation_noise_std: float | None = None,
+    euclidean_frame: str = "action",
+) -> Flow:
     """The flow of an ``action_space``: ``"se3"`` (the paper's) or ``"euclidean"`` (flat vector ablation).
     ``rotation_noise_std`` shapes the SE(3) flow's rotation noise (see :class:`SE3Flow`); the Euclidean flow's
-    noise is standard normal in every dimension."""
+    noise is standard normal in every dimension, its velocity in the frame ``euclidean_frame`` (see
+    :class:`EuclideanFlow`)."""
     if action_space == "se3":
         return SE3Flow(extra_dim, rotation_noise_std)
     if action_space == "euclidean":
-        return EuclideanFlow(extra_dim)
+        return EuclideanFlow(extra_dim, euclidean_frame)
     raise ValueError(f"action_space={action_space!r}; expected one of ('se3', 'euclidean')")
 
 

@@ -33,7 +33,9 @@ class ActionFlowModel(nn.Module):
     def __init__(self, config):
         super().__init__()
         self.config = config
-        self.flow = make_flow(config.action_space, GRIPPER_DIM, config.rotation_noise_std)
+        self.flow = make_flow(
+            config.action_space, GRIPPER_DIM, config.rotation_noise_std, config.euclidean_frame
+        )
         inputs = config.input_features
         n_tokens, feature_dim = inputs[TOKEN_FEATURES].shape
         self.image_keys = tuple(config.image_features)
