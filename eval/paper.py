@@ -1,6 +1,7 @@
 """The paper's three experiments as one resumable benchmark, through LeRobot's standard commands.
 
     python eval/paper.py sample-efficiency [--profile cpu|gpu|smoke] [--tasks Coffee] [--models A.1 DP]
+                                           [--variants D2]              # only the groups trained on D2
     python eval/paper.py inference-steps   [--profile ...] [--tasks Threading]
     python eval/paper.py generalisation    [--profile ...] [--tasks MugHanging Lightbulb]
     python eval/paper.py report            [--profile ...]      # rebuild tables and plots from the JSON
@@ -61,7 +62,7 @@ def run_experiment(experiment: str, args: argparse.Namespace, harness_command: s
     from paper_run import run_cell  # imports LeRobot: not needed for --dry-run or a plan error
 
     profile = PROFILES[args.profile]
-    cells = build(experiment, profile, args.tasks, args.models, args.steps)
+    cells = build(experiment, profile, args.tasks, args.models, args.steps, args.variants)
     check_plan(cells)
     print(describe(cells), flush=True)
     if args.dry_run:
@@ -97,6 +98,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--profile", choices=sorted(PROFILES), default="cpu")
     parser.add_argument("--tasks", nargs="+", help="only these tasks (e.g. Threading Coffee)")
     parser.add_argument("--models", nargs="+", help=f"only these models, of {[*MODELS, 'replay']}")
+    parser.add_argument("--variants", nargs="+", help="only the groups trained on these variants (e.g. D2)")
     parser.add_argument("--steps", type=int, help="training steps instead of the profile's")
     parser.add_argument("--dry-run", action="store_true", help="print the plan and run nothing")
     parser.add_argument("--work-dir", type=Path, default=Paths.work, help="datasets, checkpoints, logs")

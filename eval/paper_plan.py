@@ -163,8 +163,10 @@ def build(
     tasks: list[str] | None = None,
     models: list[str] | None = None,
     steps: int | None = None,
+    variants: list[str] | None = None,
 ) -> list[Cell]:
-    """Every cell of ``experiment`` under ``profile``, restricted to ``tasks`` and ``models`` if given."""
+    """Every cell of ``experiment`` under ``profile``, restricted to ``tasks``, ``models`` and training
+    ``variants`` (``D0``, ``D2``...) if given."""
     if experiment not in EXPERIMENTS:
         raise ValueError(f"experiment {experiment!r}; expected one of {EXPERIMENTS}")
     unknown = sorted(set(models or ()) - set(MODELS) - {"replay"})
@@ -179,6 +181,14 @@ def build(
                 f"{sorted(known)}"
             )
         groups = [g for g in groups if g.task in tasks]
+    if variants:
+        known = {g.variant for g in groups}
+        if set(variants) - known:
+            raise ValueError(
+                f"--variants {sorted(set(variants) - known)}: no such group in {experiment} ({profile.name})"
+                f"{' for ' + ', '.join(tasks) if tasks else ''}; its variants are {sorted(known)}"
+            )
+        groups = [g for g in groups if g.variant in variants]
     wanted = set(models) if models else None
     common = dict(experiment=experiment, profile=profile.name, episodes=profile.eval_episodes,
                   batch_size=profile.eval_batch_size)  # fmt: skip

@@ -268,3 +268,16 @@ def test_the_euclidean_flow_cells_name_the_frame_of_their_velocity(tmp_path):
     a1 = next(c.training for c in build("inference-steps", PROFILES["cpu"]) if c.training.model == "A.1")
     assert "velocity" not in training_of({"steps": 5, "commands": {"train": shlex.join(
         train_command(a1, tmp_path / "data", tmp_path / "out"))}})
+
+
+def test_variants_pick_groups_by_their_training_variant():
+    """``--variants D2`` runs the published protocol's group of a task without its D0 group; a variant no
+    group of the plan trains on is refused by name."""
+    cpu = PROFILES["cpu"]
+    d2 = build("sample-efficiency", cpu, ["Threading"], ["DP"], variants=["D2"])
+    assert d2 and {(c.dataset.task, c.dataset.variant, c.model) for c in d2} == {("Threading", "D2", "DP")}
+    assert {c.dataset.episodes for c in d2} == {100, 200}
+    both = build("sample-efficiency", cpu, ["Threading"], ["DP"])
+    assert {c.dataset.variant for c in both} == {"D0", "D2"}
+    with pytest.raises(ValueError, match=r"--variants \['D1'\]: no such group .* for Threading"):
+        build("sample-efficiency", cpu, ["Threading"], variants=["D1"])
