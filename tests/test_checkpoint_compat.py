@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 from fixtures.make_policy_fixtures import CHECKPOINTS, KEY_CONFIGS, LOSS_SEED, SAMPLE_SEED, config
+from lerobot.configs import PreTrainedConfig
 from safetensors.torch import load_file
 
 from lerobot_actionflow import ActionFlowPolicy
@@ -51,7 +52,6 @@ def test_a_checkpoint_saved_before_a_default_changed_keeps_its_value(tmp_path):
     """squash_limit's default became 3 after checkpoints with the paper's tanh (1) were saved without the
     field: they must load with 1, also through lerobot-eval's path (config parsed first, then passed in),
     while a new checkpoint and an explicit setting keep theirs."""
-    from lerobot.configs import PreTrainedConfig
 
     path = FIXTURES / "policy_ipa_se3"
     assert "squash_limit" not in json.loads((path / "config.json").read_text())
@@ -89,6 +89,10 @@ def test_a_euclidean_checkpoint_saved_before_euclidean_frame_keeps_the_eef_frame
     assert "euclidean_frame" not in json.loads((path / "config.json").read_text())
     old = ActionFlowPolicy.from_pretrained(path)
     assert old.config.euclidean_frame == "eef" and old.model.flow.frame == "eef"
+    # lerobot-eval's path: the config parsed first (today's default), then passed in.
+    parsed = PreTrainedConfig.from_pretrained(path)
+    assert parsed.euclidean_frame == "action"
+    assert ActionFlowPolicy.from_pretrained(path, config=parsed).model.flow.frame == "eef"
     new = ActionFlowPolicy(config(architecture="multi_token", action_space="euclidean"))
     assert new.model.flow.frame == "action"
     assert new.model.network.action_input.in_features == old.model.network.action_input.in_features - 3

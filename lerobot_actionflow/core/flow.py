@@ -170,7 +170,8 @@ class EuclideanFlow:
     * ``"action"``: each action's own frame ``R``, as the SE(3) flow's velocity is. The velocity of each of
       the three 3-vectors (the position and the two 6D columns) is ``R`` times the network's output, and the
       network reads the 6D columns as ``R^T a_1, R^T a_2`` (their lengths and angle), which no turn of the
-      whole scene changes. An invariant network (IPA) can then give the velocity directly.
+      whole scene changes. An invariant network (IPA, whose outputs describe the scene from each token's
+      pose) can then give the velocity directly.
     * ``"eef"``: the flat vector in the EEF frame, in and out. An invariant network must then work out
       its token's orientation from the 6D values it is fed to turn its output into the EEF frame
       (checkpoints saved before the choice existed are this).
@@ -207,9 +208,9 @@ class EuclideanFlow:
         for ``frame="eef"``."""
         if self.frame == "eef":
             return vec
-        rot = g.rot6d_to_matrix(x[..., 3:9])  # [B, H, 3, 3]
-        blocks = vec[..., :9].unflatten(-1, (3, 3))  # [B, H, 3 vectors, 3]
-        pattern = "bhji,bhkj->bhki" if inverse else "bhij,bhkj->bhki"
+        rot = g.rot6d_to_matrix(x[..., 3:9])  # [..., 3, 3]
+        blocks = vec[..., :9].unflatten(-1, (3, 3))  # [..., 3 vectors, 3]
+        pattern = "...ji,...kj->...ki" if inverse else "...ij,...kj->...ki"
         turned = torch.einsum(pattern, rot, blocks).flatten(-2)
         return torch.cat([turned, vec[..., 9:]], dim=-1)
 
