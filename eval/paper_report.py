@@ -171,6 +171,8 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
     import matplotlib.pyplot as plt
 
     groups = list(table)
+    names = sorted({name for rows in table.values() for name in rows})
+    colour = {name: f"C{i % 10}" for i, name in enumerate(names)}  # one colour per series in every panel
     fig, axes = plt.subplots(1, len(groups), figsize=(4.2 * len(groups), 3.6), squeeze=False)
     for ax, group in zip(axes[0], groups, strict=True):
         rows = table[group]
@@ -188,7 +190,7 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
                 cols = sorted(r, key=_sort_key)
                 xs = [_sort_key(c)[1] for c in cols]
                 ax.errorbar(xs, [100 * r[c][0] for c in cols], yerr=[100 * r[c][1] for c in cols], marker="o",
-                            capsize=3, label=name)  # fmt: skip
+                            capsize=3, label=name, color=colour[name])  # fmt: skip
             ax.set_xscale("log")
             ticks = sorted({_sort_key(c)[1] for r in rows.values() for c in r})
             ax.set_xticks(ticks, [str(t) for t in ticks])
