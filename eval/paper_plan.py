@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -157,6 +158,18 @@ def _settings(experiment: str, model: str, profile: Profile) -> list[dict]:
     return [dict(k=k, schedule="DDIM", eval_flags=tuple(f.format(k=k) for f in flags)) for k in ks]
 
 
+def _only(groups: Sequence[Group], field: str, wanted: list[str] | None, where: str) -> list[Group]:
+    """The groups whose ``field`` (``task``, ``variant``) is in ``wanted`` (all if None); a wanted value no
+    group has is refused by name (``--tasks`` / ``--variants``)."""
+    if not wanted:
+        return list(groups)
+    known = {getattr(g, field) for g in groups}
+    if set(wanted) - known:
+        missing = sorted(set(wanted) - known)
+        raise ValueError(f"--{field}s {missing}: no such group in {where}; its {field}s are {sorted(known)}")
+    return [g for g in groups if getattr(g, field) in wanted]
+
+
 def build(
     experiment: str,
     profile: Profile,
@@ -173,22 +186,9 @@ def build(
     if unknown:
         raise ValueError(f"unknown model(s) {unknown}; expected names in {[*MODELS, 'replay']}")
     groups = getattr(profile, experiment.replace("-", "_"))
-    if tasks:
-        known = {g.task for g in groups}
-        if set(tasks) - known:
-            raise ValueError(
-                f"--tasks {sorted(set(tasks) - known)}: not in {experiment} ({profile.name}); its tasks are "
-                f"{sorted(known)}"
-            )
-        groups = [g for g in groups if g.task in tasks]
-    if variants:
-        known = {g.variant for g in groups}
-        if set(variants) - known:
-            raise ValueError(
-                f"--variants {sorted(set(variants) - known)}: no such group in {experiment} ({profile.name})"
-                f"{' for ' + ', '.join(tasks) if tasks else ''}; its variants are {sorted(known)}"
-            )
-        groups = [g for g in groups if g.variant in variants]
+    where = f"{experiment} ({profile.name})"
+    groups = _only(groups, "task", tasks, where)
+    groups = _only(groups, "variant", variants, where + (f" for {', '.join(tasks)}" if tasks else ""))
     wanted = set(models) if models else None
     common = dict(experiment=experiment, profile=profile.name, episodes=profile.eval_episodes,
                   batch_size=profile.eval_batch_size)  # fmt: skip
