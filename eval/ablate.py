@@ -79,7 +79,9 @@ def record(
             continue
         for obs, action in steps:
             for key, value in schema.dataset_frame(obs, action, spec.name).items():
-                if key != "task":
+                if key.startswith(schema.IMAGES):
+                    frames[key].append(np.asarray(value, dtype=np.uint8))  # (H, W, 3), as rendered
+                elif key != "task":
                     frames[key].append(np.asarray(value, dtype=np.float32))
             frames["episode"].append(kept)
         kept += 1
@@ -95,7 +97,9 @@ def record(
 class Batches:
     """Training samples with LeRobot's delta-timestamp semantics: an observation history of ``n_obs`` steps
     (indices before the episode start repeat its first frame) and ``horizon`` actions (indices past the end
-    repeat the last action and are flagged in ``action_is_pad``)."""
+    repeat the last action and are flagged in ``action_is_pad``). Camera images are held as the env rendered
+    them, ``(H, W, 3)`` uint8 (a quarter of the memory of floats), and a batch gets them as LeRobot's loader
+    gives them: ``(3, H, W)`` float in [0, 1]. They are the raw renders, not a video's decoded frames."""
 
     def __init__(self, data: dict, n_obs: int, horizon: int):
         self.tensors = {k: torch.from_numpy(v) for k, v in data.items() if k.startswith("observation.")}
@@ -120,6 +124,9 @@ class Batches:
     def at(self, i: torch.Tensor) -> dict:
         """The training samples of frames ``i [B]``: observations ``[B, T, ...]``, actions ``[B, H, 10]``."""
         batch = {k: v[self.obs_idx[i]] for k, v in self.tensors.items()}
+        for k in batch:
+            if k.startswith(schema.IMAGES):
+                batch[k] = batch[k].permute(0, 1, 4, 2, 3).float() / 255
         batch["action"] = self.action[self.act_idx[i]]
         batch["action_is_pad"] = self.act_pad[i]
         return batch
@@ -235,6 +242,7 @@ def evaluate(policy: ActionFlowPolicy, task: str, variant: str, episodes: int, e
     _, env = make_env(task, variant, env_kwargs)
     successes, lengths = [], []
     outcomes = collections.defaultdict(int)
+    deepest: dict[int, dict] = {}
     torch.manual_seed(EVAL_SEED)
     for i in tqdm(range(episodes), desc=f"evaluating {variant}", mininterval=5):
         obs, _ = env.reset(seed=EVAL_SEED + i)
@@ -248,12 +256,18 @@ def evaluate(policy: ActionFlowPolicy, task: str, variant: str, episodes: int, e
             steps += 1
             probe.update()
         successes.append(bool(info["is_success"]))
-        outcomes[probe.outcome(bool(info["is_success"]))] += 1
+        outcome = probe.outcome(bool(info["is_success"]))
+        outcomes[outcome] += 1
         lengths.append(steps)
+        if probe.deepest() is not None:
+            deepest[EVAL_SEED + i] = {"outcome": outcome, **probe.deepest()}
     env.close()
-    return {"success": float(np.mean(successes)), "n": episodes, "mean_steps": float(np.mean(lengths)),
-            "outcomes": dict(outcomes),
-            "failed_seeds": [EVAL_SEED + i for i, s in enumerate(successes) if not s]}
+    result = {"success": float(np.mean(successes)), "n": episodes, "mean_steps": float(np.mean(lengths)),
+              "outcomes": dict(outcomes),
+              "failed_seeds": [EVAL_SEED + i for i, s in enumerate(successes) if not s]}
+    if deepest:
+        result["deepest"] = deepest
+    return result
 
 
 class Probe:
@@ -262,12 +276,16 @@ class Probe:
     MugHanging: the mug was never lifted, lifted but its handle never reached the peg, or on the peg but not
     left hanging. Lightbulb: the cap never came within 3 mm of the socket axis below the rim's top plus 5 mm
     (``never_aligned``), it did but was never seated (``jammed``: on the rim or a pin on the wall), or it was
-    seated but not left locked (``seated_not_locked``: turned too little, too far, or lifted out again)."""
+    seated but not left locked (``seated_not_locked``: turned too little, too far, or lifted out again). For
+Lightbulb it also keeps where the cap got deepest while within 4 mm of the socket axis (:meth:`deepest`): how
+far off the axis and how many degrees off the entry slots it was then, which tells a bulb held at the wrong
+angle from one held off centre."""
 
     def __init__(self, env):
         self.env = env
         self.lifted = self.on_peg = False
         self.aligned = self.seated = False
+        self.best: tuple[float, float, float] | None = None  # (cap height, radial offset, slot angle)
 
     def update(self) -> None:
         env = self.env
@@ -276,8 +294,21 @@ class Probe:
             self.on_peg |= env.handle_on_peg()
         elif hasattr(env, "bulb_seated"):
             pos, _ = env.bulb_in_socket()
-            self.aligned |= bool(np.hypot(pos[0], pos[1]) < 0.003 and pos[2] < LIGHTBULB_SOCKET_TOP + 0.005)
+            radial = float(np.hypot(pos[0], pos[1]))
+            self.aligned |= bool(radial < 0.003 and pos[2] < LIGHTBULB_SOCKET_TOP + 0.005)
             self.seated |= env.bulb_seated()
+            if radial < 0.004 and (self.best is None or pos[2] < self.best[0]):
+                self.best = (float(pos[2]), radial, env.bulb_angle())
+
+    def deepest(self) -> dict | None:
+        """Lightbulb: the cap's lowest point within 4 mm of the socket axis, as its height above the socket
+        floor and its offset from the axis (mm) and the pins' angle from the entry slots (degrees, in
+        [-90, 90): 0 is aligned, 67 locked); None for other tasks or if the cap never came that close."""
+        if self.best is None:
+            return None
+        height, radial, angle = self.best
+        return {"height_mm": round(height * 1e3, 2), "radial_mm": round(radial * 1e3, 2),
+                "angle_deg": round(float(np.rad2deg(angle)), 1)}
 
     def outcome(self, success: bool) -> str:
         if success:

@@ -429,3 +429,27 @@ def test_ablation_checkpoint_loads_as_lerobot_eval_loads_it(tmp_path):
     action = post(policy.select_action(pre(schema.policy_batch(obs))))
     assert action.shape == (1, env.action_space.shape[0])
     env.close()
+
+
+def test_ablation_camera_frames_are_what_the_policy_sees_in_evaluation(tmp_path):
+    """eval/ablate.py keeps camera frames as rendered (uint8, H x W x 3) and a batch gives them as LeRobot's
+    loader does, (3, H, W) floats in [0, 1] with the history padded at the episode start; each must equal
+    what the evaluation's ``schema.policy_batch`` makes of the same render."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+    import ablate
+
+    from lerobot_actionflow import schema
+
+    key = "observation.images.wrist"
+    data = ablate.record("Stack", "D0", 1, 1.0, {"obs_mode": "pixels", "image_size": 32}, tmp_path)
+    assert data[key].dtype == np.uint8 and data[key].shape[1:] == (32, 32, 3)
+    assert data["observation.token_poses"].dtype == np.float32
+    batches = ablate.Batches(data, n_obs=2, horizon=16)
+    frames = torch.tensor([0, 1, 7])
+    batch = batches.at(frames)
+    assert batch[key].shape == (3, 2, 3, 32, 32) and batch[key].dtype == torch.float32
+    for row, frame in enumerate(frames.tolist()):
+        for step, source in enumerate((max(frame - 1, 0), frame)):
+            seen = schema.policy_batch({"pixels": {"wrist": data[key][source]}})[key][0]
+            assert torch.equal(batch[key][row, step], seen), f"frame {frame}, history step {step}"
+    assert float(batch[key].max()) <= 1.0 and float(batch[key].max()) > 0.1
