@@ -18,7 +18,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot_actionflow import schema
 
 TASK_OPTIONS: dict[str, tuple[str, ...]] = {
-    "Lightbulb": ("socket_obs",),
+    "Lightbulb": ("socket_obs", "socket_pose"),
     "MugHanging": ("hanger_obs", "mug_yaw", "mask_after_grasp"),
 }
 """Env-config fields passed to ``gym.make`` for one task only (task name -> fields); None = the env's
@@ -54,6 +54,8 @@ class ActionFlowEnvConfig(EnvConfig):
     """MugHanging only, with ``obs_mode=pixels``: black out the wrist image but the mug while it is held."""
     socket_obs: str | None = None
     """Lightbulb only: ``pose`` (the env's default) or ``none`` (no socket token; needs obs_mode=pixels)."""
+    socket_pose: str | None = None
+    """Lightbulb only: ``any`` (the env's default) or ``slight`` (the socket near one pose: the paper's)."""
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: dict(schema.FEATURES_MAP))
 

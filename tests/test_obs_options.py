@@ -1,6 +1,6 @@
-"""The paper's two observation options: Lightbulb without the socket's token (`socket_obs="none"`) and
-MugHanging's wrist image masked to the mug once it is grasped (`mask_after_grasp=True`); and that leaving them
-at their defaults changes nothing."""
+"""The paper's observation options: Lightbulb without the socket's token (`socket_obs="none"`) and with the
+socket near one pose (`socket_pose="slight"`), and MugHanging's wrist image masked to the mug once it is
+grasped (`mask_after_grasp=True`); and that leaving them at their defaults changes nothing."""
 
 from __future__ import annotations
 
@@ -56,8 +56,9 @@ def lockstep(env_id: str, kwargs_a: dict, kwargs_b: dict, seed: int, steps: int)
 
 @pytest.mark.parametrize(
     ("env_id", "kwargs"),
-    [(BULB, {"socket_obs": "none"}), (MUG, {"mask_after_grasp": True})],
-    ids=["Lightbulb-socket_obs-none", "MugHanging-mask_after_grasp"],
+    [(BULB, {"socket_obs": "none"}), (BULB, {"socket_obs": "none", "socket_pose": "slight"}),
+     (MUG, {"mask_after_grasp": True})],
+    ids=["Lightbulb-socket_obs-none", "Lightbulb-socket_pose-slight", "MugHanging-mask_after_grasp"],
 )
 def test_check_env(env_id, kwargs):
     env = gym.make(env_id, obs_mode="pixels", **kwargs)
@@ -67,7 +68,7 @@ def test_check_env(env_id, kwargs):
 
 @pytest.mark.parametrize(
     ("env_id", "kwargs"),
-    [(BULB, {"socket_obs": "pose"}), (MUG, {"mask_after_grasp": False})],
+    [(BULB, {"socket_obs": "pose", "socket_pose": "any"}), (MUG, {"mask_after_grasp": False})],
     ids=["Lightbulb", "MugHanging"],
 )
 def test_options_at_their_defaults_change_nothing(env_id, kwargs):
@@ -118,6 +119,30 @@ def test_expert_solves_lightbulb_without_the_socket_token(seed):
     env.close()
 
 
+# ---------------------------------------------------------------- Lightbulb, socket_pose
+def test_slight_socket_pose_stays_near_one_pose_and_the_expert_still_solves_it():
+    """`socket_pose="slight"` draws the socket within 1 cm of (0.05, 0) and 10 degrees of yaw 56.5 degrees
+    (the layouts of "any" spread over 20 x 30 cm and every slot orientation); the expert solves it."""
+    from gym_actionflow.tasks.lightbulb import SOCKET_POSES
+
+    env = gym.make(BULB, socket_pose="slight")
+    base = env.unwrapped
+    xys, yaws = [], []
+    for seed in range(20):
+        env.reset(seed=seed)
+        pos, rot = base.body_pose(base.socket_id)
+        xys.append(pos[:2])
+        yaws.append(np.rad2deg(np.arctan2(rot[1, 0], rot[0, 0])))
+    xys, yaws = np.array(xys), np.array(yaws)
+    assert np.abs(xys - [0.05, 0.0]).max() <= 0.01 + 1e-9
+    assert np.abs(yaws - 56.5).max() <= 10.0 + 1e-6
+    assert xys.std(axis=0).min() > 0.003 and yaws.std() > 3.0, "the slight layouts do not vary"
+    assert SOCKET_POSES["any"].x == (-0.05, 0.15)  # the default layouts are today's
+    episode = run_episode(env, make_expert(env, noise=1.0, seed=0), 0)
+    assert episode.success and base.bulb_locked()
+    env.close()
+
+
 # ---------------------------------------------------------------- bad values
 @pytest.mark.parametrize(
     ("env_id", "kwargs", "match"),
@@ -129,6 +154,7 @@ def test_expert_solves_lightbulb_without_the_socket_token(seed):
         ),
         (BULB, {"socket_obs": None, "obs_mode": "pixels"}, r"socket_obs=None; expected one of"),
         (BULB, {"socket_obs": "none"}, r"socket_obs='none' with obs_mode='state'.*obs_mode='pixels'"),
+        (BULB, {"socket_pose": "fixed"}, r"socket_pose='fixed'; expected one of \('any', 'slight'\)"),
         (MUG, {"mask_after_grasp": "yes", "obs_mode": "pixels"}, r"mask_after_grasp='yes'; expected True"),
         (MUG, {"mask_after_grasp": 1, "obs_mode": "pixels"}, r"mask_after_grasp=1; expected True"),
         (MUG, {"mask_after_grasp": True}, r"mask_after_grasp=True with obs_mode='state'.*obs_mode='pixels'"),
@@ -168,6 +194,11 @@ def test_env_config_passes_the_options_like_lerobot_eval_parses_them():
     ):
         ActionFlowEnvConfig(task="Lightbulb-v0", mask_after_grasp=True)
     assert "socket_obs" not in ActionFlowEnvConfig(task="Lightbulb-v0").gym_kwargs
+    config = draccus.parse(_EvalArgs, args=["--env.type=actionflow", "--env.task=Lightbulb-v0",
+                                            "--env.socket_pose=slight"]).env
+    assert config.gym_kwargs == {"variant": "D0", "obs_mode": "state", "socket_pose": "slight"}
+    with pytest.raises(ValueError, match="--env.socket_pose is a Lightbulb option; the task is MugHanging"):
+        ActionFlowEnvConfig(task="MugHanging-v0", socket_pose="slight")
 
 
 # ---------------------------------------------------------------- MugHanging, mask_after_grasp
