@@ -113,6 +113,9 @@ class ActionFlowConfig(PreTrainedConfig):
     # Where an image enters the scene. "token": a token of its own, posed at the EEF token of its step.
     # "eef" (paper): its feature is added to that EEF token's feature (the camera's pose); no extra token.
     image_placement: str = "token"
+    # Training augmentation of the images: each sample's frames shifted by up to this many pixels each way
+    # (edge-padded random crop, one offset per sample); 0 = off. Evaluation always sees the image unshifted.
+    image_random_shift: int = 0
 
     # Runtime (real-robot options of the paper's appendix).
     # Exponential smoothing of consecutive actions: a_out = alpha * a_prev + (1 - alpha) * a_new (0 = off).
@@ -152,6 +155,8 @@ class ActionFlowConfig(PreTrainedConfig):
             raise ValueError(f"image_encoder={self.image_encoder!r}; expected one of {IMAGE_ENCODERS}")
         if self.image_placement not in IMAGE_PLACEMENTS:
             raise ValueError(f"image_placement={self.image_placement!r}; expected one of {IMAGE_PLACEMENTS}")
+        if not isinstance(self.image_random_shift, int) or self.image_random_shift < 0:
+            raise ValueError(f"image_random_shift={self.image_random_shift!r}; expected an int >= 0 (pixels)")
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(
                 f"n_action_steps={self.n_action_steps}, horizon={self.horizon}; expected "

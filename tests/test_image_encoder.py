@@ -1,6 +1,6 @@
-"""The image options ``image_encoder="resnet18"`` and ``image_placement="eef"``: shapes, the ResNet's
-architecture and gradients, the policy's SE(3) equivariance with them, the token count, the config fields and
-their checkpoints."""
+"""The image options ``image_encoder="resnet18"``, ``image_placement="eef"`` and ``image_random_shift``:
+shapes, the ResNet's architecture and gradients, the policy's SE(3) equivariance with them, the token count,
+the augmentation, the config fields and their checkpoints."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from torchvision.models.resnet import BasicBlock
 
 from lerobot_actionflow import ActionFlowConfig, ActionFlowPolicy
 from lerobot_actionflow.core import geometry as g
-from lerobot_actionflow.core.encoders import ImageEncoder, ResNet18ImageEncoder
+from lerobot_actionflow.core.encoders import ImageEncoder, ResNet18ImageEncoder, random_shift
 
 FIXTURES = Path(__file__).parent / "fixtures"
 IMAGE, POINTS = "observation.images.wrist", "observation.point_cloud"
@@ -217,3 +217,57 @@ def test_a_checkpoint_saved_before_the_image_fields_loads_with_todays_image_defa
     assert "image_encoder" not in saved and "image_placement" not in saved
     config = ActionFlowPolicy.from_pretrained(path).config
     assert (config.image_encoder, config.image_placement) == ("cnn", "token")
+
+
+# ---------------------------------------------------------------- image_random_shift
+def test_random_shift_is_an_edge_padded_crop_with_one_offset_per_sample():
+    """Each sample is its frames moved by one offset of at most ``pad`` pixels each way (every history step
+    alike), the uncovered border filled with the edge pixels: checked against a direct pixel-by-pixel
+    reference for every offset the batch drew."""
+    pad, size = 3, 12
+    images = _images(0, size, lead=(16, 2))
+    shifted = random_shift(images, pad, torch.Generator().manual_seed(1))
+    assert shifted.shape == images.shape
+    rows = torch.arange(size)
+    seen = set()
+    for i in range(images.shape[0]):
+        matches = []
+        for dy in range(-pad, pad + 1):
+            for dx in range(-pad, pad + 1):
+                r = (rows + dy).clamp(0, size - 1)
+                c = (rows + dx).clamp(0, size - 1)
+                reference = images[i][:, :, r][:, :, :, c]  # out[y, x] = in[clamp(y + dy), clamp(x + dx)]
+                if torch.equal(shifted[i], reference):
+                    matches.append((dy, dx))
+        assert matches, f"sample {i} is not one edge-padded shift of its frames within {pad} px"
+        seen.add(matches[0])
+    assert len(seen) > 4, "the offsets do not vary between samples"
+    assert random_shift(images, 0) is images
+
+
+def test_random_shift_changes_training_only():
+    """The augmentation is drawn in the training loss only: actions sampled in evaluation mode are the same
+    with and without it, and the training loss on the same batch and noise is not."""
+    plain = _policy("cnn", "token", 32, num_inference_steps=2)
+    shifted = _policy("cnn", "token", 32, num_inference_steps=2, image_random_shift=4)
+    shifted.load_state_dict(plain.state_dict())
+    obs = _observation(3, 32)
+    torch.manual_seed(5)
+    a = plain.predict_action_chunk(obs)
+    torch.manual_seed(5)
+    torch.testing.assert_close(shifted.predict_action_chunk(obs), a, atol=0, rtol=0)
+    action = torch.zeros(2, plain.config.horizon, 10)
+    action[..., 3] = action[..., 7] = 1.0  # identity rotation columns
+    valid = torch.ones(2, plain.config.horizon, dtype=torch.bool)
+    losses = []
+    for policy in (plain, shifted):
+        policy.train()
+        torch.manual_seed(9)
+        losses.append(policy.model.loss(obs, action, valid)[0])
+    assert not torch.equal(losses[0], losses[1])
+
+
+@pytest.mark.parametrize("value", [-1, 2.5])
+def test_bad_random_shift_is_rejected(value):
+    with pytest.raises(ValueError, match=re.escape(f"image_random_shift={value!r}; expected an int >= 0")):
+        make_config(image_random_shift=value)

@@ -37,6 +37,21 @@ def _conv_block(c_in: int, c_out: int, stride: int) -> nn.Sequential:
     )
 
 
+def random_shift(images: Tensor, pad: int, generator: torch.Generator | None = None) -> Tensor:
+    """Training augmentation of camera images ``[B, T, C, H, W]``: each sample's frames, padded by ``pad``
+    pixels (edge pixels repeated), cropped back to ``H x W`` at one random offset in ``[0, 2 pad]`` per sample
+    (the same for every step of its history), as DrQ's and Diffusion Policy's random crops. The content moves
+    by up to ``pad`` pixels each way, so a policy cannot key its actions to exact pixel positions of 100
+    demonstrations. ``pad=0`` returns ``images`` itself."""
+    if pad <= 0:
+        return images
+    b, t, c, h, w = images.shape
+    padded = nn.functional.pad(images.reshape(b, t * c, h, w), (pad, pad, pad, pad), mode="replicate")
+    offsets = torch.randint(0, 2 * pad + 1, (b, 2), generator=generator, device="cpu").tolist()
+    crops = [padded[i, :, dy : dy + h, dx : dx + w] for i, (dy, dx) in enumerate(offsets)]
+    return torch.stack(crops).reshape(b, t, c, h, w)
+
+
 class ImageEncoder(nn.Module):
     """RGB images ``[*, 3, H, W]`` in [0, 1] -> ``[*, dim]``.
 

@@ -19,6 +19,7 @@ from torch import Tensor, nn
 
 from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.adaptation import EEFFrame
+from lerobot_actionflow.core.encoders import random_shift
 from lerobot_actionflow.core.flow import SE3State, euler_states, make_flow, time_grid
 from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
 from lerobot_actionflow.schema import GRIPPER_DIM, POINT_CLOUD, POSE_DIM, TOKEN_FEATURES, TOKEN_POSES
@@ -93,6 +94,9 @@ class ActionFlowModel(nn.Module):
 
         Returns the loss and each unweighted term.
         """
+        shift = self.config.image_random_shift if self.training else 0
+        if shift and self.image_keys:
+            obs = {**obs, **{k: random_shift(obs[k], shift) for k in self.image_keys}}
         frame, scene = self.encode(obs)
         rot1, trans1 = frame.to_local(*g.pose9_to_rt(action[..., :POSE_DIM]))
         x1 = self.flow.from_poses(SE3State(rot1, trans1, action[..., POSE_DIM:]))
