@@ -122,7 +122,8 @@ def test_expert_solves_lightbulb_without_the_socket_token(seed):
 # ---------------------------------------------------------------- Lightbulb, socket_pose
 def test_slight_socket_pose_stays_near_one_pose_and_the_expert_still_solves_it():
     """`socket_pose="slight"` draws the socket within 1 cm of (0.05, 0) and 10 degrees of yaw 56.5 degrees
-    (the layouts of "any" spread over 20 x 30 cm and every slot orientation); the expert solves it."""
+    (the layouts of "any" spread over 20 x 30 cm and every slot orientation); the expert solves it; "fixed"
+    puts it at that one pose in every layout."""
     from gym_actionflow.tasks.lightbulb import SOCKET_POSES
 
     env = gym.make(BULB, socket_pose="slight")
@@ -141,6 +142,16 @@ def test_slight_socket_pose_stays_near_one_pose_and_the_expert_still_solves_it()
     episode = run_episode(env, make_expert(env, noise=1.0, seed=0), 0)
     assert episode.success and base.bulb_locked()
     env.close()
+    fixed = gym.make(BULB, socket_pose="fixed")
+    poses = []
+    for seed in range(3):
+        fixed.reset(seed=seed)
+        pos, rot = fixed.unwrapped.body_pose(fixed.unwrapped.socket_id)
+        poses.append(np.concatenate([pos, rot.ravel()]))
+    np.testing.assert_array_equal(poses[0], poses[1])
+    np.testing.assert_array_equal(poses[0], poses[2])
+    np.testing.assert_allclose(poses[0][:2], [0.05, 0.0])
+    fixed.close()
 
 
 # ---------------------------------------------------------------- bad values
@@ -154,7 +165,7 @@ def test_slight_socket_pose_stays_near_one_pose_and_the_expert_still_solves_it()
         ),
         (BULB, {"socket_obs": None, "obs_mode": "pixels"}, r"socket_obs=None; expected one of"),
         (BULB, {"socket_obs": "none"}, r"socket_obs='none' with obs_mode='state'.*obs_mode='pixels'"),
-        (BULB, {"socket_pose": "fixed"}, r"socket_pose='fixed'; expected one of \('any', 'slight'\)"),
+        (BULB, {"socket_pose": "moving"}, r"socket_pose='moving'; expected one of \('any', 'slight', 'fix"),
         (MUG, {"mask_after_grasp": "yes", "obs_mode": "pixels"}, r"mask_after_grasp='yes'; expected True"),
         (MUG, {"mask_after_grasp": 1, "obs_mode": "pixels"}, r"mask_after_grasp=1; expected True"),
         (MUG, {"mask_after_grasp": True}, r"mask_after_grasp=True with obs_mode='state'.*obs_mode='pixels'"),

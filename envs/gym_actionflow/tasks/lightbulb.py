@@ -87,11 +87,13 @@ in-hand yaw; joint 7's range is +-166 degrees) when pin 1 goes into slot 1 and i
 SOCKET_POSES = {
     "any": SOCKET_REGION,
     "slight": Region((0.04, 0.06), (-0.01, 0.01), (np.deg2rad(46.5), np.deg2rad(66.5))),
+    "fixed": Region((0.05, 0.05), (0.0, 0.0), (np.deg2rad(56.5), np.deg2rad(56.5))),
 }
-"""The socket's layout by the ``socket_pose`` keyword: ``any`` (``SOCKET_REGION``), or ``slight``, near the
-paper's protocol: its real socket stood in one place (replaying a recorded demonstration succeeded 8 times in
-10), here within 1 cm of the region's centre and 10 degrees of its middle yaw. That is still far beyond the
-1.5 mm the insertion forgives, so a policy must find the socket, but not among every slot orientation."""
+"""The socket's layout by the ``socket_pose`` keyword: ``any`` (``SOCKET_REGION``); ``fixed``, the paper's
+protocol: its real socket stood in one place (replaying a recorded demonstration succeeded 8 times in 10),
+here at the region's centre and its middle yaw, so that only the bulb's offset in the hand varies; or
+``slight``, within 1 cm of that pose and 10 degrees of its yaw: far beyond the 1.5 mm the insertion forgives,
+so a policy must find the socket, but not among every slot orientation."""
 BULB_IN_TCP = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 """Nominal bulb orientation in the TCP frame: the bulb axis along -z (cap down when the fingers point down),
 pin 1 along -y (the closing direction). Across the slots is then along the pads (TCP x), where the grasp is
@@ -256,9 +258,9 @@ class LightbulbEnv(ManipulationEnv):
     hanging cap-down with pin 1 along the TCP's -y axis (the closing direction), offset in the hand by up to
     +-3 mm along the pads, +-3 mm along its axis and +-5 degrees about its axis (uniform). The socket axis at
     x in [-0.05, 0.15], y in [-0.15, 0.15] (its floor 5 cm above the table), yaw of its x axis in
-    [-33.5, 146.5) degrees (every slot orientation once). One variant, `"D0"`. `socket_pose="slight"`
-    (default `"any"`) keeps the socket within 1 cm of (0.05, 0) and 10 degrees of yaw 56.5 degrees, near the
-    paper's protocol, where the socket stood in one place.
+    [-33.5, 146.5) degrees (every slot orientation once). One variant, `"D0"`. `socket_pose="fixed"`
+    (default `"any"`) puts the socket at (0.05, 0) with yaw 56.5 degrees in every layout, the paper's protocol
+    (its socket stood in one place); `"slight"` within 1 cm and 10 degrees of that pose.
 
     ## Episode end
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (300).
