@@ -341,7 +341,28 @@ def table(results: Path) -> str:
             e = r["eval"].get(v)
             cells.append(f"{e['success']:.0%} of {e['n']}" if e else "")
         lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return "\n".join(lines + deepest_table(rows))
+
+
+def deepest_table(rows: list[dict]) -> list[str]:
+    """Lightbulb cells that kept :meth:`Probe.deepest`: per cell and outcome, the episodes that came within
+    4 mm of the socket axis and the medians of where the cap got deepest."""
+    lines = []
+    for r in rows:
+        for variant, e in r["eval"].items():
+            by_outcome: dict[str, list[dict]] = collections.defaultdict(list)
+            for d in e.get("deepest", {}).values():
+                by_outcome[d["outcome"]].append(d)
+            for outcome, ds in sorted(by_outcome.items()):
+                med = {k: float(np.median([abs(d[k]) for d in ds]))
+                       for k in ("height_mm", "radial_mm", "angle_deg")}
+                lines.append(f"| {r['name']} | {variant} | {outcome} | {len(ds)} of {e['n']} | "
+                             f"{med['height_mm']:.1f} | {med['radial_mm']:.2f} | {med['angle_deg']:.1f} |")
+    if not lines:
+        return []
+    head = ("\n| cell | layouts | outcome | came within 4 mm | cap height above the floor (mm) "
+            "| off the axis (mm) | off the entry slots (degrees) |")
+    return [head, "|---|---|---|---|---|---|---|", *lines]
 
 
 def parse_value(text: str):
