@@ -259,8 +259,8 @@ def evaluate(policy: ActionFlowPolicy, task: str, variant: str, episodes: int, e
         outcome = probe.outcome(bool(info["is_success"]))
         outcomes[outcome] += 1
         lengths.append(steps)
-        if probe.deepest() is not None:
-            deepest[EVAL_SEED + i] = {"outcome": outcome, **probe.deepest()}
+        if (closest := probe.deepest()) is not None:
+            deepest[EVAL_SEED + i] = {"outcome": outcome, **closest}
     env.close()
     result = {"success": float(np.mean(successes)), "n": episodes, "mean_steps": float(np.mean(lengths)),
               "outcomes": dict(outcomes),
@@ -277,9 +277,9 @@ class Probe:
     left hanging. Lightbulb: the cap never came within 3 mm of the socket axis below the rim's top plus 5 mm
     (``never_aligned``), it did but was never seated (``jammed``: on the rim or a pin on the wall), or it was
     seated but not left locked (``seated_not_locked``: turned too little, too far, or lifted out again). For
-Lightbulb it also keeps where the cap got deepest while within 4 mm of the socket axis (:meth:`deepest`): how
-far off the axis and how many degrees off the entry slots it was then, which tells a bulb held at the wrong
-angle from one held off centre."""
+    Lightbulb it also keeps where the cap got deepest while within 4 mm of the socket axis (:meth:`deepest`):
+    how far off the axis and how many degrees off the entry slots it was then, which tells a bulb held at the
+    wrong angle from one held off centre."""
 
     def __init__(self, env):
         self.env = env

@@ -55,7 +55,7 @@ class ActionFlowEnvConfig(EnvConfig):
     socket_obs: str | None = None
     """Lightbulb only: ``pose`` (the env's default) or ``none`` (no socket token; needs obs_mode=pixels)."""
     socket_pose: str | None = None
-    """Lightbulb only: ``any`` (the env's default) or ``slight`` (the socket near one pose: the paper's)."""
+    """Lightbulb only: ``any`` (the env's default), ``fixed`` (one socket pose, the paper's) or ``slight``."""
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: dict(schema.FEATURES_MAP))
 
