@@ -129,13 +129,14 @@ class Paths:
 
 def _trainings(profile: Profile, experiment: str, group: Group, models: set[str] | None, steps: int | None):
     """(dataset, training) pairs of a group, for the models asked for."""
-    n = steps or group.steps or profile.steps[experiment]
+    base = steps or group.steps or profile.steps[experiment]
     for demos in group.demos:
         dataset = Dataset(group.task, group.variant, demos, env_kwargs=group.env_kwargs)
         for name in group.models:
             if models is not None and name not in models:
                 continue
             model = MODELS[name]
+            n = base if steps else max(base, profile.min_steps.get(model.policy_type, 0))
             flags = model.flags + profile.policy_flags.get(model.policy_type, ())
             if model.flow:  # the task's ActionFlow settings, as the main job passes them (not diffusion's)
                 flags += task_policy_flags(group.task)

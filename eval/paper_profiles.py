@@ -8,7 +8,7 @@ here, so a result's JSON names its profile and the profile names everything else
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
@@ -90,6 +90,8 @@ class Profile:
     sample_efficiency: tuple[Group, ...]
     inference_steps: tuple[Group, ...]
     generalisation: tuple[Group, ...]
+    min_steps: dict[str, int] = field(default_factory=dict)
+    """At least this many training steps per ``--policy.type``, whatever the experiment or group sets."""
     inference_ks: tuple[int, ...] = (1, 2, 4, 10, 100)
     schedules: tuple[str, ...] = ("uniform", "exponential")
     record_workers: int = 1
@@ -110,6 +112,11 @@ MUG = (("mug_yaw", "slight"),)  # the paper's protocol: slight variations of the
 MUG_PC = (*MUG, ("hanger_obs", "point_cloud"))
 INFERENCE_MODELS = ("A.1", "A.1-euclidean", "DP")
 CPU_UNET = ("--policy.down_dims=[64,128,256]",)
+# LeRobot's Diffusion Policy scored 0 % at 2000-6000 steps with its 1e-4 learning rate on every cpu-profile
+# task and 25 % on Stack at 8000 (eval/results/diffusion_baseline.md); on this CPU it trains at least 8000
+# steps, with ActionFlow's optimiser settings (1e-3, 100 warm-up steps), which halved its loss at 2000 steps.
+CPU_DIFFUSION = (*CPU_UNET, "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100")
+CPU_DIFFUSION_STEPS = 8000
 
 
 def _generalisation(
@@ -135,8 +142,9 @@ CPU = Profile(
     eval_episodes=50,
     eval_batch_size=10,
     checkpoints=1,
-    policy_flags={"diffusion": CPU_UNET},
-    notes={"diffusion": "UNet down_dims 64-128-256 (cpu profile)"},
+    policy_flags={"diffusion": CPU_DIFFUSION},
+    notes={"diffusion": "UNet down_dims 64-128-256, lr 1e-3 (cpu profile)"},
+    min_steps={"diffusion": CPU_DIFFUSION_STEPS},
     sample_efficiency=(
         *(Group(t, "D0", (20, 50, 200), ("A.1", "A.3", "DP")) for t in MIMICGEN_D0),
         Group("StackThree", "D1", (100, 200), ("A.1", "DP")),

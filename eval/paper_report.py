@@ -75,6 +75,7 @@ def training_of(cell: dict) -> str:
     train = cell.get("commands", {}).get("train", "")
     if "--policy.type=diffusion" in train:
         text += ", object poses " + ("min-max normalised" if DIFFUSION_NORMALISATION in train else "raw")
+        text += ", lr 1e-3" if "--policy.optimizer_lr=1e-3" in train else ", lr 1e-4"
     if "--policy.action_space=euclidean" in train:  # before the flag existed, the EEF frame was the only one
         frame = "each action's frame" if "--policy.euclidean_frame=action" in train else "the EEF frame"
         text += f", velocity in {frame}"
