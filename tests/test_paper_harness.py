@@ -190,8 +190,12 @@ def test_a_group_may_train_longer_than_its_profile_and_the_steps_flag_still_over
     not as many steps; ``--steps`` still sets every training of a run."""
     cpu = PROFILES["cpu"]
     cells = build("inference-steps", cpu, ["RobosuiteSquare", "RobosuiteToolHang"])
-    steps = {c.dataset.task: c.training.steps for c in cells}
-    assert steps == {"RobosuiteSquare": cpu.steps["inference-steps"], "RobosuiteToolHang": 11_000}
+    flow = {c.dataset.task: c.training.steps for c in cells if c.training.model != "DP"}
+    assert flow == {"RobosuiteSquare": cpu.steps["inference-steps"], "RobosuiteToolHang": 11_000}
+    floor = cpu.min_steps["diffusion"]  # the diffusion baseline keeps its own, longer minimum
+    diffusion = {c.dataset.task: c.training.steps for c in cells if c.training.model == "DP"}
+    assert diffusion == {"RobosuiteSquare": max(cpu.steps["inference-steps"], floor),
+                         "RobosuiteToolHang": max(11_000, floor)}  # fmt: skip
     forced = build("inference-steps", cpu, ["RobosuiteToolHang"], None, 7)
     assert {c.training.steps for c in forced} == {7}
 
@@ -199,7 +203,8 @@ def test_a_group_may_train_longer_than_its_profile_and_the_steps_flag_still_over
 def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_training():
     """The generalisation experiment trains MugHanging's ActionFlow models with the task's runtime settings
     (kept in the checkpoint's config, so lerobot-eval uses them); the diffusion baseline and the Lightbulb
-    cells do not get them. Every generalisation training runs 6000 steps on the cpu profile."""
+    cells do not get them. Every generalisation training of ActionFlow runs 6000 steps on the cpu profile, every
+    diffusion training at least its own minimum."""
     from paper_commands import train_command
 
     from lerobot_actionflow.tools.demo import task_policy_flags
@@ -216,7 +221,9 @@ def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_traini
         cmd = train_command(training, Path("data"), Path("out"))
         flow_mug = training.dataset.task == "MugHanging" and training.model != "DP"
         assert all((flag in cmd) == flow_mug for flag in mug_runtime), (training.model, cmd)
-        assert training.steps == 6000  # MugHanging and Lightbulb both train longer than the profile's 3000
+        # MugHanging and Lightbulb both train longer than the profile's 3000; diffusion at least its minimum
+        expected = max(6000, cpu.min_steps["diffusion"]) if training.model == "DP" else 6000
+        assert training.steps == expected, (training.dataset.task, training.model)
     assert cpu.steps["generalisation"] == 3000
     assert all(flag.startswith("--policy.") for flag in mug_runtime)
 
