@@ -145,9 +145,14 @@ def _trainings(profile: Profile, experiment: str, group: Group, models: set[str]
                                         profile.checkpoints)  # fmt: skip
 
 
+DDPM_STEPS = 100
+"""LeRobot's Diffusion Policy trains with 100 DDPM steps and, by default, samples with all of them."""
+
+
 def _settings(experiment: str, model: str, profile: Profile) -> list[dict]:
     """The evaluations of one training: a plain one, or (inference steps) every K on every time grid for a
-    flow and every K of DDIM for diffusion, as evaluation-time overrides of the trained policy's config."""
+    flow and every K of DDIM for diffusion (plus its default DDPM sampler), as evaluation-time overrides of
+    the trained policy's config."""
     if experiment != "inference-steps":
         return [{}]
     ks = profile.inference_ks
@@ -156,7 +161,12 @@ def _settings(experiment: str, model: str, profile: Profile) -> list[dict]:
         return [dict(k=k, schedule=s, eval_flags=tuple(f.format(k=k, s=s) for f in flags))
                 for k in ks for s in profile.schedules]  # fmt: skip
     flags = ("--policy.noise_scheduler_type=DDIM", "--policy.num_inference_steps={k}")
-    return [dict(k=k, schedule="DDIM", eval_flags=tuple(f.format(k=k) for f in flags)) for k in ks]
+    ddim = [dict(k=k, schedule="DDIM", eval_flags=tuple(f.format(k=k) for f in flags)) for k in ks]
+    # The same training under the sampler it was trained with (LeRobot's default: DDPM, every one of its
+    # 100 training steps), so a low DDIM row is told apart from a weak training.
+    ddpm_flags = ("--policy.noise_scheduler_type=DDPM", f"--policy.num_inference_steps={DDPM_STEPS}")
+    ddpm = dict(k=DDPM_STEPS, schedule="DDPM", eval_flags=ddpm_flags)
+    return [*ddim, ddpm]
 
 
 def _only(groups: Sequence[Group], field: str, wanted: list[str] | None, where: str) -> list[Group]:

@@ -203,8 +203,8 @@ def test_a_group_may_train_longer_than_its_profile_and_the_steps_flag_still_over
 def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_training():
     """The generalisation experiment trains MugHanging's ActionFlow models with the task's runtime settings
     (kept in the checkpoint's config, so lerobot-eval uses them); the diffusion baseline and the Lightbulb
-    cells do not get them. Every generalisation training of ActionFlow runs 6000 steps on the cpu profile, every
-    diffusion training at least its own minimum."""
+    cells do not get them. Every generalisation training of ActionFlow runs 6000 steps on the cpu profile,
+    every diffusion training at least its own minimum."""
     from paper_commands import train_command
 
     from lerobot_actionflow.tools.demo import task_policy_flags
@@ -276,6 +276,26 @@ def test_the_cpu_profile_trains_diffusion_at_least_its_minimum_with_its_learning
             assert "--policy.optimizer_lr=1e-3" in cmd and f"--steps={t.steps}" in cmd
             assert training_of({"steps": t.steps, "commands": {"train": shlex.join(cmd)}}).endswith("lr 1e-3")
     assert {c.training.steps for c in build("inference-steps", CPU, tasks=["Threading"], steps=7)} == {7}
+
+
+def test_diffusion_is_evaluated_under_ddim_at_every_k_and_under_its_own_ddpm_sampler(tmp_path):
+    """The inference-steps experiment evaluates each Diffusion Policy training with DDIM at every K of the
+    profile and once with the DDPM sampler it was trained with (all 100 steps), one training for all six; the
+    report shows the two samplers as separate rows."""
+    from paper_commands import eval_command
+    from paper_report import series
+
+    cells = [c for c in build("inference-steps", PROFILES["cpu"], ["Threading"]) if c.model == "DP"]
+    assert len({c.training for c in cells}) == 1
+    ks = PROFILES["cpu"].inference_ks
+    assert sorted((c.schedule, c.k) for c in cells) == sorted([("DDPM", 100)] + [("DDIM", k) for k in ks])
+    assert len({c.key for c in cells}) == len(cells)
+    for c in cells:
+        cmd = eval_command(c, tmp_path / "ckpt", tmp_path / "eval")
+        assert f"--policy.noise_scheduler_type={c.schedule}" in cmd
+        assert f"--policy.num_inference_steps={c.k}" in cmd
+    rows = {series({"model": "DP", "schedule": c.schedule, "note": c.note}) for c in cells}
+    assert len(rows) == 2 and all(r.startswith(("DP DDIM", "DP DDPM")) for r in rows)
 
 
 def test_the_euclidean_flow_cells_name_the_frame_of_their_velocity(tmp_path):
