@@ -174,6 +174,8 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
     groups = list(table)
     names = sorted({name for rows in table.values() for name in rows})
     colour = {name: f"C{i % 10}" for i, name in enumerate(names)}  # one colour per series in every panel
+    layouts = sorted({c for rows in table.values() for r in rows.values() for c in r}, key=_sort_key)
+    bar_colour = {col: f"C{i % 10}" for i, col in enumerate(layouts)}  # one colour per layout in every panel
     fig, axes = plt.subplots(1, len(groups), figsize=(4.2 * len(groups), 3.6), squeeze=False)
     for ax, group in zip(axes[0], groups, strict=True):
         rows = table[group]
@@ -183,7 +185,7 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
             for j, col in enumerate(cols):
                 xs = [i + j * width for i, r in enumerate(rows.values()) if col in r]
                 ys = [100 * r[col][0] for r in rows.values() if col in r]
-                ax.bar(xs, ys, width, label=col)
+                ax.bar(xs, ys, width, label=col, color=bar_colour[col])
             ax.set_xticks([i + width * (len(cols) - 1) / 2 for i in range(len(rows))])
             ax.set_xticklabels([n.split(" (")[0] for n in rows], rotation=20, fontsize=8)
         else:
@@ -200,9 +202,18 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
         ax.set_title(group, fontsize=10)
         ax.set_ylim(0, 105)
         ax.set_ylabel("success (%)")
-        ax.legend(fontsize=7)
+    # One legend for all panels, under them, so no line of any panel is hidden behind it.
+    labelled = {}
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            labelled.setdefault(label, handle)
+    rows = -(-len(labelled) // 3)
+    fig.set_size_inches(fig.get_figwidth(), 3.6 + 0.2 * rows)  # room for the legend, panels kept their height
+    bottom = (0.18 + 0.2 * rows) / fig.get_figheight()
+    fig.legend(list(labelled.values()), list(labelled), loc="lower center", ncol=3, fontsize=7,
+               bbox_to_anchor=(0.5, 0.03), frameon=False)  # fmt: skip
     fig.text(0.01, 0.005, caption, fontsize=6, family="monospace")
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    fig.tight_layout(rect=(0, bottom, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120, metadata={"Description": caption})
     plt.close(fig)
