@@ -2,6 +2,8 @@
 
     python eval/open_loop.py outputs/ablate/ckpt/<cell> --task MugHanging --variant train
     python eval/open_loop.py outputs/train/<run>/checkpoints/last/pretrained_model --task Stack --variant D0
+    python eval/open_loop.py <diffusion checkpoint> --task Coffee --variant D0 \
+        --set noise_scheduler_type=DDIM --set num_inference_steps=100
 
 The checkpoint is an ActionFlow policy (``eval/ablate.py --save`` or ``lerobot-train``) or any other LeRobot
 policy saved by ``lerobot-train`` (Diffusion Policy...), which reads the demonstrations through its own saved
@@ -39,19 +41,66 @@ from lerobot_actionflow.core import geometry  # noqa: E402
 Predict = Callable[[dict], torch.Tensor]
 
 
-def load_policy(checkpoint: Path) -> tuple[int, int, Predict]:
+def override(config, settings: dict[str, str]):
+    """``config`` with evaluation-time fields replaced, as ``lerobot-eval --policy.FIELD=VALUE`` does (e.g.
+    ``noise_scheduler_type=DDIM``, ``num_inference_steps=10``, ``clip_sample=false``); each value is parsed
+    as the field's current type, and an unknown field or an unparsable value is refused by name."""
+    import dataclasses
+
+    fields = {f.name for f in dataclasses.fields(config)}
+    changes = {}
+    for name, text in settings.items():
+        if name not in fields:
+            raise SystemExit(f"--set {name}={text}: {type(config).__name__} has no field {name!r}")
+        current = getattr(config, name)
+        if isinstance(current, bool):
+            if text.lower() not in ("true", "false"):
+                raise SystemExit(f"--set {name}={text}: expected true or false")
+            changes[name] = text.lower() == "true"
+        elif isinstance(current, int) or (current is None and text.isdigit()):
+            try:
+                changes[name] = int(text)
+            except ValueError:
+                raise SystemExit(f"--set {name}={text}: expected an integer") from None
+        elif isinstance(current, float):
+            changes[name] = float(text)
+        else:
+            changes[name] = text
+    return dataclasses.replace(config, **changes) if changes else config
+
+
+def respace(policy, spacing: str) -> None:
+    """Rebuild a Diffusion Policy's noise scheduler with diffusers' ``timestep_spacing`` (``leading``, the
+    default: K steps from t = 100 - 100/K; ``trailing``: from t = 99, the noisiest; ``linspace``), its other
+    settings kept. LeRobot's config has no such field; this tells a sampler's step count from where it
+    starts."""
+    scheduler = getattr(getattr(policy, "diffusion", None), "noise_scheduler", None)
+    if scheduler is None:
+        raise SystemExit(f"--timestep-spacing: a {type(policy).__name__} has no diffusion noise scheduler")
+    policy.diffusion.noise_scheduler = type(scheduler).from_config(scheduler.config, timestep_spacing=spacing)
+
+
+def load_policy(
+    checkpoint: Path, settings: dict[str, str] | None = None, spacing: str | None = None
+) -> tuple[int, int, Predict]:
     """``(n_obs_steps, horizon, predict)`` of a saved policy: ``predict(batch)`` maps raw demonstration
     observations ``{key: [B, n_obs, ...]}`` to a chunk of raw actions ``[B, H, 10]``, starting at the current
-    frame. ActionFlow reads its raw token poses; another LeRobot policy goes through its saved processors."""
+    frame. ActionFlow reads its raw token poses; another LeRobot policy goes through its saved processors.
+    ``settings`` overrides config fields first (``override``), as lerobot-eval's ``--policy.*`` flags;
+    ``spacing`` sets a diffusion sampler's timestep spacing (``respace``)."""
     from lerobot.configs.policies import PreTrainedConfig
 
-    config = PreTrainedConfig.from_pretrained(checkpoint)
+    config = override(PreTrainedConfig.from_pretrained(checkpoint), settings or {})
     if config.type == "actionflow":
-        policy = ActionFlowPolicy.from_pretrained(checkpoint).eval()
+        if spacing is not None:
+            raise SystemExit("--timestep-spacing: an ActionFlow policy has no diffusion noise scheduler")
+        policy = ActionFlowPolicy.from_pretrained(checkpoint, config=config).eval()
         return policy.config.n_obs_steps, policy.config.horizon, policy.predict_action_chunk
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
-    policy = get_policy_class(config.type).from_pretrained(checkpoint).eval()
+    policy = get_policy_class(config.type).from_pretrained(checkpoint, config=config).eval()
+    if spacing is not None:
+        respace(policy, spacing)
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
     keys = set(policy.config.input_features)
 
@@ -94,10 +143,20 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--cache", type=Path, default=Path("outputs/ablate/data"))
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                    help="gym.make keyword of the demonstrations' env, e.g. mug_yaw=slight")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", dest="settings",
+                   help="override a policy config field first, e.g. noise_scheduler_type=DDIM "
+                   "num_inference_steps=10 (repeatable)")
+    p.add_argument("--timestep-spacing", choices=("leading", "trailing", "linspace"),
+                   help="Diffusion Policy only: where its K sampling steps sit among the 100 trained ones "
+                   "(default: as saved, diffusers' leading)")
     args = p.parse_args(argv)
 
     torch.set_num_threads(1)
-    n_obs, horizon, predict = load_policy(args.checkpoint)
+    bad = [kv for kv in args.settings if "=" not in kv]
+    if bad:
+        raise SystemExit(f"--set {bad[0]!r}: expected FIELD=VALUE")
+    settings = dict(kv.split("=", 1) for kv in args.settings)
+    n_obs, horizon, predict = load_policy(args.checkpoint, settings, args.timestep_spacing)
     if horizon < 8:
         raise SystemExit(f"{args.checkpoint} returns {horizon} actions per chunk; the table reads steps 0-7")
     env_kwargs = dict(kv.split("=", 1) for kv in args.env_kwarg)

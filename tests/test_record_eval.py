@@ -269,6 +269,34 @@ def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(datas
     assert chunk.shape == (5, 8, 10) and torch.isfinite(chunk).all()
     low, high = data["action"].min(0), data["action"].max(0)  # the DDPM sample is clipped to the data's range
     assert ((chunk.numpy() >= low - 1e-4) & (chunk.numpy() <= high + 1e-4)).all()
+    # The open-loop probe's --set overrides the sampler as lerobot-eval's --policy.* flags do.
+    from open_loop import override
+
+    saved = PreTrainedConfig.from_pretrained(ckpt)
+    settings = {"noise_scheduler_type": "DDIM", "num_inference_steps": "3", "clip_sample": "false"}
+    ddim = override(saved, settings)
+    assert (ddim.noise_scheduler_type, ddim.num_inference_steps, ddim.clip_sample) == ("DDIM", 3, False)
+    assert saved.noise_scheduler_type == "DDPM" and saved.clip_sample  # the saved config is left alone
+    with pytest.raises(SystemExit, match="no field 'num_steps'"):
+        override(saved, {"num_steps": "3"})
+    with pytest.raises(SystemExit, match="clip_sample=maybe: expected true or false"):
+        override(saved, {"clip_sample": "maybe"})
+    _, _, predict_ddim = load_policy(ckpt, {"noise_scheduler_type": "DDIM", "num_inference_steps": "3"})
+    observation = {k: v for k, v in batch.items() if k.startswith("observation.")}
+    torch.manual_seed(0)
+    ddpm_chunk = predict(observation)
+    torch.manual_seed(0)
+    ddim_chunk = predict_ddim(observation)
+    assert ddim_chunk.shape == (5, 8, 10) and torch.isfinite(ddim_chunk).all()
+    assert not torch.allclose(ddim_chunk, ddpm_chunk)  # the same noise, another sampler: the override took
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+    from open_loop import respace
+
+    policy = DiffusionPolicy.from_pretrained(ckpt, config=ddim)
+    respace(policy, "trailing")  # K = 3 from the noisiest step, not from t = 100 - 100 / 3
+    policy.diffusion.noise_scheduler.set_timesteps(3)
+    assert policy.diffusion.noise_scheduler.timesteps.tolist() == [99, 66, 32]
+    assert type(policy.diffusion.noise_scheduler).__name__ == "DDIMScheduler"
     cmd = [
         _cli("lerobot-eval"), f"--policy.path={ckpt}", "--policy.device=cpu", "--env.type=actionflow",
         "--env.task=Stack-v0", "--eval.n_episodes=1", "--eval.batch_size=1",
