@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from ablate import Batches, record  # noqa: E402
+from ablate import Batches, parse_value, record  # noqa: E402
 
 from lerobot_actionflow import ActionFlowPolicy  # noqa: E402
 from lerobot_actionflow.core import geometry  # noqa: E402
@@ -43,8 +43,9 @@ Predict = Callable[[dict], torch.Tensor]
 
 def override(config, settings: dict[str, str]):
     """``config`` with evaluation-time fields replaced, as ``lerobot-eval --policy.FIELD=VALUE`` does (e.g.
-    ``noise_scheduler_type=DDIM``, ``num_inference_steps=10``, ``clip_sample=false``); each value is parsed
-    as the field's current type, and an unknown field or an unparsable value is refused by name."""
+    ``noise_scheduler_type=DDIM``, ``num_inference_steps=10``, ``clip_sample=false``); values are read as
+    ``eval/ablate.py`` reads its overrides, and an unknown field, or a value of the wrong kind for a boolean
+    or numeric field, is refused by name."""
     import dataclasses
 
     fields = {f.name for f in dataclasses.fields(config)}
@@ -52,20 +53,12 @@ def override(config, settings: dict[str, str]):
     for name, text in settings.items():
         if name not in fields:
             raise SystemExit(f"--set {name}={text}: {type(config).__name__} has no field {name!r}")
-        current = getattr(config, name)
-        if isinstance(current, bool):
-            if text.lower() not in ("true", "false"):
-                raise SystemExit(f"--set {name}={text}: expected true or false")
-            changes[name] = text.lower() == "true"
-        elif isinstance(current, int) or (current is None and text.isdigit()):
-            try:
-                changes[name] = int(text)
-            except ValueError:
-                raise SystemExit(f"--set {name}={text}: expected an integer") from None
-        elif isinstance(current, float):
-            changes[name] = float(text)
-        else:
-            changes[name] = text
+        value, current = parse_value(text), getattr(config, name)
+        if isinstance(current, bool) and not isinstance(value, bool):
+            raise SystemExit(f"--set {name}={text}: expected true or false")
+        elif isinstance(current, int | float) and not isinstance(value, int | float):
+            raise SystemExit(f"--set {name}={text}: expected a number")
+        changes[name] = value
     return dataclasses.replace(config, **changes) if changes else config
 
 

@@ -10,6 +10,7 @@ that evaluates checkpoints during training adds a second table, the best of thos
 from __future__ import annotations
 
 import json
+import re
 import statistics
 from collections import defaultdict
 from pathlib import Path
@@ -75,7 +76,8 @@ def training_of(cell: dict) -> str:
     train = cell.get("commands", {}).get("train", "")
     if "--policy.type=diffusion" in train:
         text += ", object poses " + ("min-max normalised" if DIFFUSION_NORMALISATION in train else "raw")
-        text += ", lr 1e-3" if "--policy.optimizer_lr=1e-3" in train else ", lr 1e-4"
+        lr = re.search(r"--policy\.optimizer_lr=(\S+)", train)
+        text += f", lr {lr.group(1) if lr else '1e-4'}"  # without the flag, LeRobot's default
     if "--policy.action_space=euclidean" in train:  # before the flag existed, the EEF frame was the only one
         frame = "each action's frame" if "--policy.euclidean_frame=action" in train else "the EEF frame"
         text += f", velocity in {frame}"
@@ -207,9 +209,9 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
     for ax in axes[0]:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             labelled.setdefault(label, handle)
-    rows = -(-len(labelled) // 3)
-    fig.set_size_inches(fig.get_figwidth(), 3.6 + 0.2 * rows)  # room for the legend, panels kept their height
-    bottom = (0.18 + 0.2 * rows) / fig.get_figheight()
+    legend_rows = -(-len(labelled) // 3)
+    fig.set_size_inches(fig.get_figwidth(), 3.6 + 0.2 * legend_rows)  # room for the legend under the panels
+    bottom = (0.18 + 0.2 * legend_rows) / fig.get_figheight()
     fig.legend(list(labelled.values()), list(labelled), loc="lower center", ncol=3, fontsize=7,
                bbox_to_anchor=(0.5, 0.03), frameon=False)  # fmt: skip
     fig.text(0.01, 0.005, caption, fontsize=6, family="monospace")
