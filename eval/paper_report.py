@@ -106,6 +106,51 @@ def superseded_section(results: Path, profile: str, experiment: str) -> list[str
     return [*lines, ""]
 
 
+def _minutes(values: list[float]) -> str:
+    lo, hi = min(values) / 60, max(values) / 60
+    return f"{lo:.1f}" if round(lo, 1) == round(hi, 1) else f"{lo:.1f}-{hi:.1f}"
+
+
+def timing_section(cells: list[dict]) -> list[str]:
+    """Markdown lines with the wall time the cells took, per group and model, read from each cell's
+    ``seconds``: a training shared by several cells (one per K or layout) is counted once, every evaluation
+    on its own; a dataset once. No timed cell: no lines."""
+    timed = [c for c in cells if c.get("seconds")]
+    if not timed:
+        return []
+    trainings: dict = defaultdict(dict)  # (group, model) -> {train command: seconds}
+    evals: dict = defaultdict(list)
+    records: dict = {}
+    for c in timed:
+        name = f"{c['model']} ({c['note']})" if c.get("note") else c["model"]
+        commands, seconds = c.get("commands", {}), c["seconds"]
+        if "train" in seconds:
+            trainings[c["group"], name][commands.get("train", c["key"])] = seconds["train"]
+        for part in ("eval", "replay"):
+            if part in seconds:
+                evals[c["group"], name].append(seconds[part])
+        if "record" in seconds:
+            records[commands.get("record", c["key"])] = seconds["record"]
+    lines = [
+        "## Wall time per cell", "",
+        "As each cell recorded it (`seconds` in its JSON), on the machine that ran it, most often with a "
+        "second cell sharing the CPU; a training shared by several cells is counted once.", "",
+        "| group | model | trainings | training (min) | evaluations | evaluation per cell (min) |",
+        "|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for key in sorted(set(trainings) | set(evals)):
+        train, ev = list(trainings.get(key, {}).values()), evals.get(key, [])
+        train_min, eval_min = _minutes(train) if train else "", _minutes(ev) if ev else ""
+        lines.append(f"| {key[0]} | {key[1]} | {len(train)} | {train_min} | {len(ev)} | {eval_min} |")
+    total = sum(records.values()) + sum(sum(t.values()) for t in trainings.values())
+    total += sum(sum(e) for e in evals.values())
+    lines += ["", f"In all {total / 3600:.1f} h: recording {sum(records.values()) / 60:.0f} min "
+              f"({len(records)} dataset{'' if len(records) == 1 else 's'}), training "
+              f"{sum(sum(t.values()) for t in trainings.values()) / 3600:.1f} h, evaluation "
+              f"{sum(sum(e) for e in evals.values()) / 3600:.1f} h.", ""]  # fmt: skip
+    return lines
+
+
 def series(cell: dict) -> str:
     """What a table row / plot line is: the model, its evaluation setting, and its note (e.g. the UNet)."""
     name = cell["model"]
@@ -261,6 +306,7 @@ def write(results: Path, profile: str, experiment: str, report_command: str) -> 
         for group, rows in best.items():
             lines += [f"### {group}", "", markdown_table(rows), ""]
     lines += [f"![{TITLES[experiment]}]({stem.name}.png)", ""]
+    lines += timing_section(cells)
     lines += superseded_section(results, profile, experiment)
     stem.with_suffix(".md").write_text("\n".join(lines))
     return stem.with_suffix(".md"), stem.with_suffix(".png")

@@ -65,13 +65,36 @@ def test_a_tiny_cell_of_each_experiment_writes_json_table_and_plot(smoke, experi
     assert all(c["group"] in table for c in cells)
     png = paths.results / f"smoke_{experiment}.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+    assert "## Wall time per cell" in table
     if experiment == "inference-steps":
         assert any("--policy.num_inference_steps=1" in c["commands"]["eval"] for c in cells)
         assert "K=1" in table
+        flow = next(c for c in cells if c["model"] == "A.1")
+        assert f"| {flow['group']} | A.1 ({flow['note']}) | 1 | " in table.split("## Wall time per cell")[1]
     if experiment == "generalisation":
         assert {c["eval_variant"] for c in cells if c["task"] == "MugHanging"} == {"train", "test"}
         assert "--env.mug_yaw=slight" in next(c for c in cells if c["model"] == "A.1")["commands"]["eval"]
         assert "replay 1.5 mm off" in table
+
+
+def test_the_wall_time_table_counts_a_shared_training_once_and_every_evaluation():
+    """Three cells evaluating one training at three K: one training, three evaluations; a dataset shared
+    by all of them is counted once in the total."""
+    from paper_report import timing_section
+
+    def cell(k: int, train: str, eval_s: float) -> dict:
+        return {"group": "Coffee D0", "model": "A.1", "key": f"k{k}",
+                "commands": {"train": train, "record": "actionflow-record coffee"},
+                "seconds": {"record": 60.0, "train": 600.0, "eval": eval_s}}  # fmt: skip
+
+    cells = [cell(k, "lerobot-train a", 60.0 * i) for i, k in enumerate((1, 2, 4), start=1)]
+    cells.append(dict(cell(1, "lerobot-train b", 30.0), model="DP", note="UNet 64-128-256"))
+    lines = timing_section(cells)
+    assert "| Coffee D0 | A.1 | 1 | 10.0 | 3 | 1.0-3.0 |" in lines
+    assert "| Coffee D0 | DP (UNet 64-128-256) | 1 | 10.0 | 1 | 0.5 |" in lines
+    # one dataset (60 s) + two trainings (1200 s) + four evaluations (390 s) = 1650 s
+    assert any(line.startswith("In all 0.5 h: recording 1 min (1 dataset)") for line in lines)
+    assert timing_section([{k: v for k, v in c.items() if k != "seconds"} for c in cells]) == []
 
 
 def test_superseded_cells_are_listed_apart_and_never_pooled_with_todays(smoke, tmp_path):
