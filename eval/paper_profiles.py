@@ -146,7 +146,7 @@ CPU = Profile(
     notes={"diffusion": "UNet down_dims 64-128-256, lr 1e-3 (cpu profile)"},
     min_steps={"diffusion": CPU_DIFFUSION_STEPS},
     sample_efficiency=(
-        *(Group(t, "D0", (20, 50, 200), ("A.1", "A.3", "DP")) for t in MIMICGEN_D0),
+        *(Group(t, "D0", (20, 50, 200), ("A.1", "A.2", "A.3", "DP")) for t in MIMICGEN_D0),
         Group("StackThree", "D1", (100, 200), ("A.1", "DP")),
         Group("Threading", "D2", (100, 200), ("A.1", "DP")),
     ),
