@@ -142,12 +142,12 @@ def timing_section(cells: list[dict]) -> list[str]:
         train, ev = list(trainings.get(key, {}).values()), evals.get(key, [])
         train_min, eval_min = _minutes(train) if train else "", _minutes(ev) if ev else ""
         lines.append(f"| {key[0]} | {key[1]} | {len(train)} | {train_min} | {len(ev)} | {eval_min} |")
-    total = sum(records.values()) + sum(sum(t.values()) for t in trainings.values())
-    total += sum(sum(e) for e in evals.values())
-    lines += ["", f"In all {total / 3600:.1f} h: recording {sum(records.values()) / 60:.0f} min "
-              f"({len(records)} dataset{'' if len(records) == 1 else 's'}), training "
-              f"{sum(sum(t.values()) for t in trainings.values()) / 3600:.1f} h, evaluation "
-              f"{sum(sum(e) for e in evals.values()) / 3600:.1f} h.", ""]  # fmt: skip
+    record_s = sum(records.values())
+    train_s = sum(sum(t.values()) for t in trainings.values())
+    eval_s = sum(sum(e) for e in evals.values())
+    lines += ["", f"In all {(record_s + train_s + eval_s) / 3600:.1f} h: recording {record_s / 60:.0f} min "
+              f"({len(records)} dataset{'' if len(records) == 1 else 's'}), training {train_s / 3600:.1f} h, "
+              f"evaluation {eval_s / 3600:.1f} h.", ""]  # fmt: skip
     return lines
 
 
