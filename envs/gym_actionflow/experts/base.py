@@ -15,13 +15,12 @@ per-step jitter on the emitted pose, both scaled by ``noise`` (0 gives a determi
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
-
 import gymnasium as gym
 import numpy as np
 
 from gym_actionflow.base import ManipulationEnv
 from gym_actionflow.geometry import axis_angle_matrix, pose9, rotation_angle, rotation_log
+from gym_actionflow.rollout import Episode, rollout
 from gym_actionflow.tasks.robomimic import RobosuiteTaskEnv
 
 OPEN, CLOSE = -1.0, 1.0
@@ -140,16 +139,6 @@ class ScriptedExpert:
         yield from self.hold(steps)
 
 
-@dataclass(frozen=True)
-class Episode:
-    """Outcome of one expert episode."""
-
-    success: bool
-    steps: int
-    terminated: bool
-    last_reward: float
-
-
 def run_episode(
     env: gym.Env,
     expert: ScriptedExpert,
@@ -158,23 +147,12 @@ def run_episode(
     on_frame: Callable[[np.ndarray], None] | None = None,
     on_step: Callable[[dict, np.ndarray], None] | None = None,
 ) -> Episode:
-    """Reset ``env`` with ``seed`` and run ``expert`` until the episode terminates or is truncated.
-
-    ``env`` must come from ``gym.make``, whose time limit ends every episode. ``on_frame`` receives
-    ``env.render()`` before each step (for videos); ``on_step`` receives each observation and the action
-    taken from it (for datasets)."""
-    obs, info = env.reset(seed=seed)
-    expert.reset(seed=expert_seed)
-    steps, terminated, truncated, reward = 0, False, False, 0.0
-    while not (terminated or truncated):
-        if on_frame is not None:
-            on_frame(env.render())
-        action = expert.act(obs)
-        if on_step is not None:
-            on_step(obs, action)
-        obs, reward, terminated, truncated, info = env.step(action)
-        steps += 1
-    return Episode(bool(info["is_success"]), steps, bool(terminated), float(reward))
+    """Reset ``env`` with ``seed`` and run ``expert`` until the episode terminates or is truncated
+    (:func:`gym_actionflow.rollout.rollout`, the expert reset on the fresh state)."""
+    return rollout(
+        env, expert.act, seed, on_reset=lambda obs, info: expert.reset(seed=expert_seed), on_frame=on_frame,
+        on_step=on_step,
+    )
 
 
 def object_in_tcp(env: ManipulationEnv, body_id: int) -> tuple[np.ndarray, np.ndarray]:
