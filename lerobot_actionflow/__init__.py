@@ -3,14 +3,40 @@
 Importing this package registers the policy type ``actionflow`` and the environment type ``actionflow``
 (the gym_actionflow tasks) with LeRobot. LeRobot imports it first thing in ``lerobot-train`` and
 ``lerobot-eval`` (plugin discovery), so it is also where the torchcodec notice below is shortened.
+
+Without LeRobot installed the package still imports, so that ``lerobot_actionflow.core`` (the policy in plain
+torch) and ``lerobot_actionflow.schema`` can be used alone; the LeRobot-facing names then raise an
+ImportError saying what is missing.
 """
 
 import logging
 
-from lerobot_actionflow import env_config as _env_config  # noqa: F401  (registers --env.type=actionflow)
-from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
-from lerobot_actionflow.modeling_actionflow import ActionFlowPolicy
-from lerobot_actionflow.processor_actionflow import make_actionflow_pre_post_processors
+try:
+    import lerobot  # noqa: F401
+except ImportError as _err:
+    _LEROBOT_ERROR: ImportError | None = _err
+else:
+    _LEROBOT_ERROR = None
+
+__all__ = ["ActionFlowConfig", "ActionFlowPolicy", "make_actionflow_pre_post_processors"]
+__version__ = "0.1.0"
+
+if _LEROBOT_ERROR is not None:
+
+    def __getattr__(name: str):
+        if name in __all__:
+            raise ImportError(
+                f"lerobot_actionflow.{name} needs LeRobot, which cannot be imported ({_LEROBOT_ERROR}); "
+                "install it with `pip install 'lerobot>=0.6.1,<0.7'` "
+                "(lerobot_actionflow.core works without it)"
+            ) from _LEROBOT_ERROR
+        raise AttributeError(f"module 'lerobot_actionflow' has no attribute {name!r}")
+
+else:
+    from lerobot_actionflow import env_config as _env_config  # noqa: F401  (registers --env.type=actionflow)
+    from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
+    from lerobot_actionflow.modeling_actionflow import ActionFlowPolicy
+    from lerobot_actionflow.processor_actionflow import make_actionflow_pre_post_processors
 
 
 class _TorchcodecNotice(logging.Filter):
@@ -45,6 +71,3 @@ class _TorchcodecNotice(logging.Filter):
 _import_logger = logging.getLogger("lerobot.utils.import_utils")
 if not any(isinstance(f, _TorchcodecNotice) for f in _import_logger.filters):
     _import_logger.addFilter(_TorchcodecNotice())
-
-__all__ = ["ActionFlowConfig", "ActionFlowPolicy", "make_actionflow_pre_post_processors"]
-__version__ = "0.1.0"

@@ -7,9 +7,14 @@ from dataclasses import dataclass, field
 from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig, CosineDecayWithWarmupSchedulerConfig
+from lerobot.optim.schedulers import LRSchedulerConfig
+from torch.optim import Optimizer
+from torch.optim.lr_scheduler import LambdaLR
 
 from lerobot_actionflow.core.adaptation import SQUASH_MODES
 from lerobot_actionflow.core.flow import EUCLIDEAN_FRAMES
+from lerobot_actionflow.core.mixers import MIXERS
+from lerobot_actionflow.core.model import ModelSpec, Sampler
 from lerobot_actionflow.schema import (
     ACTION,
     ACTION_DIM,
@@ -20,7 +25,7 @@ from lerobot_actionflow.schema import (
     TOKEN_POSES,
 )
 
-ARCHITECTURES = ("ipa", "multi_token", "single_token")
+ARCHITECTURES = tuple(MIXERS)
 ACTION_SPACES = ("se3", "euclidean")
 TIME_SCHEDULES = ("uniform", "exponential")
 POINT_ENCODERS = ("pointnet", "vn")
@@ -30,6 +35,26 @@ MIN_IMAGE_SIDE = {"cnn": 17, "resnet18": 33}
 """Smallest image side each encoder can see: the CNN's feature map is 1/16 of the image and the ResNet18's
 1/32; below these sides the map is 1x1, its spatial-softmax keypoints are constant and the image is
 ignored."""
+
+
+@LRSchedulerConfig.register_subclass("actionflow_cosine")
+@dataclass
+class RunLengthCosineSchedulerConfig(CosineDecayWithWarmupSchedulerConfig):
+    """LeRobot's cosine decay with warm-up, its decay spanning the training run when ``num_decay_steps`` is
+    None. (LeRobot's own, given more decay steps than the run has, shrinks the warm-up by the same factor: a
+    2000-step run of a 100000-step schedule would warm up for 2 steps instead of 100.)"""
+
+    num_warmup_steps: int = 100
+    num_decay_steps: int | None = None
+    peak_lr: float = 1e-3
+    decay_lr: float = 1e-5
+
+    def build(self, optimizer: Optimizer, num_training_steps: int) -> LambdaLR:
+        decay = self.num_decay_steps or num_training_steps
+        fixed = CosineDecayWithWarmupSchedulerConfig(
+            self.num_warmup_steps, decay, self.peak_lr, self.decay_lr
+        )
+        return fixed.build(optimizer, num_training_steps)
 
 
 @PreTrainedConfig.register_subclass("actionflow")
@@ -125,14 +150,17 @@ class ActionFlowConfig(PreTrainedConfig):
     latency_compensation: bool = False
     control_fps: float = 20.0
 
-    # Training presets.
-    optimizer_lr: float = 3e-4
+    # Training presets: the settings every published figure trained with (AdamW at 1e-3 after 100 warm-up
+    # steps, cosine decay to 1e-5 over the run: `lerobot-train --steps` sets the decay's length, see
+    # `get_scheduler_preset`). Checkpoints saved before these were the defaults keep their saved values.
+    optimizer_lr: float = 1e-3
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
     optimizer_eps: float = 1e-8
     optimizer_weight_decay: float = 1e-4
     optimizer_grad_clip_norm: float = 1.0
-    scheduler_warmup_steps: int = 500
-    scheduler_decay_steps: int = 100_000
+    scheduler_warmup_steps: int = 100
+    # None: the decay spans the training run (`lerobot-train --steps`); an int fixes its length.
+    scheduler_decay_steps: int | None = None
     scheduler_decay_lr: float = 1e-5
     # Exponential moving average of the weights, updated after every optimiser step (LeRobot's training loop
     # calls the policy's `update()`), sampled from at inference: ema = d * ema + (1 - d) * weights, with
@@ -181,6 +209,16 @@ class ActionFlowConfig(PreTrainedConfig):
                 f"rotation_noise_std={self.rotation_noise_std}; expected None (uniform on SO(3), the "
                 "paper's) or a standard deviation > 0 in radians"
             )
+        if self.scheduler_decay_steps is not None and self.scheduler_decay_steps < 1:
+            raise ValueError(
+                f"scheduler_decay_steps={self.scheduler_decay_steps}; expected None (the decay spans the "
+                "training run) or an integer >= 1"
+            )
+        if self.scheduler_warmup_steps < 0 or not self.optimizer_lr > 0:
+            raise ValueError(
+                f"scheduler_warmup_steps={self.scheduler_warmup_steps}, optimizer_lr={self.optimizer_lr}; "
+                "expected warm-up steps >= 0 and a learning rate > 0"
+            )
         if self.translation_scale <= 0:
             raise ValueError(f"translation_scale={self.translation_scale}; expected > 0")
         if self.control_fps <= 0:
@@ -207,8 +245,8 @@ class ActionFlowConfig(PreTrainedConfig):
             grad_clip_norm=self.optimizer_grad_clip_norm,
         )
 
-    def get_scheduler_preset(self) -> CosineDecayWithWarmupSchedulerConfig:
-        return CosineDecayWithWarmupSchedulerConfig(
+    def get_scheduler_preset(self) -> RunLengthCosineSchedulerConfig:
+        return RunLengthCosineSchedulerConfig(
             peak_lr=self.optimizer_lr,
             decay_lr=self.scheduler_decay_lr,
             num_warmup_steps=self.scheduler_warmup_steps,
@@ -260,6 +298,21 @@ class ActionFlowConfig(PreTrainedConfig):
                 f"action has shape {tuple(action.shape)}; expected (10,): target EEF pose {POSE_LAYOUT} "
                 "+ gripper command in [-1, 1]"
             )
+
+    def model_spec(self) -> ModelSpec:
+        """The plain-data spec :class:`~lerobot_actionflow.core.model.ActionFlowModel` is built from: this
+        config's settings and the token layout of its input features."""
+        inputs = self.input_features or {}
+        n_tokens, feature_dim = inputs[TOKEN_FEATURES].shape
+        settings = {name: getattr(self, name) for name in ModelSpec.settings()}
+        return ModelSpec(**{
+            **settings, "tokens_per_step": n_tokens, "token_feature_dim": feature_dim,
+            "image_keys": tuple(self.image_features), "point_cloud": POINT_CLOUD in inputs,
+        })  # fmt: skip
+
+    def sampler(self) -> Sampler:
+        """How chunks are sampled now (read at every call: an evaluation may change these fields)."""
+        return Sampler(self.num_inference_steps, self.time_schedule, self.time_schedule_rate)
 
     @property
     def observation_delta_indices(self) -> list[int]:

@@ -77,7 +77,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config = config
-        model = ActionFlowModel(config)
+        model = ActionFlowModel(config.model_spec())
         # Checkpoints hold the network's weights as `network.*` (the names from before the model existed): the
         # network is registered here under that name, and the model, which has no weights of its own, is kept
         # as a plain attribute so that its network is not registered a second time as `model.network.*`.
@@ -227,7 +227,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
         torch's global generator.
         """
         with self._sampling_weights():
-            return self.model.sample(self._check_and_stack(batch), noise)
+            return self.model.sample(self._check_and_stack(batch), noise, self.config.sampler())
 
     @torch.no_grad()
     def sample_trajectory(self, batch: dict[str, Tensor], noise=None) -> FlowTrajectory:
@@ -235,7 +235,9 @@ class ActionFlowPolicy(PreTrainedPolicy):
         under the same seed ``actions[-1]`` is bit for bit the chunk ``predict_action_chunk`` samples
         (tested), as both run ``ActionFlowModel``'s one sampling path."""
         with self._sampling_weights():
-            times, actions = self.model.sample_trajectory(self._check_and_stack(batch), noise)
+            times, actions = self.model.sample_trajectory(
+                self._check_and_stack(batch), noise, self.config.sampler()
+            )
         return FlowTrajectory(times=times, actions=actions)
 
     @torch.no_grad()

@@ -53,7 +53,7 @@ def test_the_model_alone_gives_the_policys_chunk_and_encodes_once_per_chunk():
     model.network.forward = counting("velocity", forward)
     torch.manual_seed(4)
     with torch.no_grad():
-        chunk = model.sample(obs)
+        chunk = model.sample(obs, sampler=policy.config.sampler())
     torch.testing.assert_close(chunk, expected, atol=0, rtol=0)
     assert calls == {"encode": 1, "velocity": 3}
 

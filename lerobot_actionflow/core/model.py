@@ -1,7 +1,8 @@
 """ActionFlowModel: the adaptation module, the flow and the velocity network joined: encode / loss / sample.
 
-Plain torch, testable alone: it reads an ``ActionFlowConfig`` (any object with its fields) and takes
-observation tensors that already have a history axis. ``ActionFlowPolicy`` (``modeling_actionflow``) wraps it
+Plain torch, testable alone: it is built from a :class:`ModelSpec` (plain data, which
+``ActionFlowConfig.model_spec()`` fills from a LeRobot config) and takes observation tensors that already have
+a history axis. ``ActionFlowPolicy`` (``modeling_actionflow``) wraps it
 with what LeRobot needs: input validation, the observation and action queues, and the runtime options.
 
 Data flow for one chunk::
@@ -13,6 +14,8 @@ Data flow for one chunk::
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, fields
 
 import torch
 from torch import Tensor, nn
@@ -28,56 +31,96 @@ LOSS_TERMS = {"translation": "translation", "rotation": "rotation", "gripper": "
 """Loss term -> the part of the flow's velocity it measures (the flow's extras are the gripper command)."""
 
 
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything :class:`ActionFlowModel` is built from: the observation layout it reads and the settings of
+    the adaptation module, the flow, the loss and the network. The defaults are ``ActionFlowConfig``'s
+    (tests/test_policy.py checks they agree); the fields' meaning is documented there."""
+
+    tokens_per_step: int
+    """N, the scene tokens per observation step (token 0 = end effector)."""
+    token_feature_dim: int
+    """F, the feature width of each scene token."""
+    image_keys: tuple[str, ...] = ()
+    point_cloud: bool = False
+    n_obs_steps: int = 2
+    horizon: int = 16
+    translation_scale: float = 10.0
+    squash_limit: float = 3.0
+    squash_mode: str = "axis"
+    action_space: str = "se3"
+    euclidean_frame: str = "action"
+    rotation_noise_std: float | None = 0.5
+    translation_loss_weight: float = 1.0
+    rotation_loss_weight: float = 1.0
+    gripper_loss_weight: float = 1.0
+    image_random_shift: int = 0
+    architecture: str = "ipa"
+    dim: int = 128
+    num_heads: int = 4
+    ipa_layers: int = 2
+    transformer_layers: int = 2
+    ipa_head_dim: int = 16
+    ipa_query_points: int = 4
+    ipa_value_points: int = 4
+    dropout: float = 0.0
+    point_encoder: str = "pointnet"
+    image_encoder: str = "cnn"
+    image_placement: str = "token"
+
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        """The fields a config supplies by name (the layout fields come from its input features)."""
+        layout = {"tokens_per_step", "token_feature_dim", "image_keys", "point_cloud"}
+        return tuple(f.name for f in fields(cls) if f.name not in layout)
+
+
+NETWORK_FIELDS = (
+    "architecture", "dim", "num_heads", "ipa_layers", "transformer_layers", "ipa_head_dim",
+    "ipa_query_points", "ipa_value_points", "dropout", "point_encoder", "image_encoder", "image_placement",
+    "image_keys", "point_cloud", "n_obs_steps", "horizon", "squash_limit", "squash_mode",
+)  # fmt: skip
+"""The :class:`ModelSpec` fields the velocity network is built from (the rest: flow, loss, frame)."""
+
+
+@dataclass(frozen=True)
+class Sampler:
+    """How a chunk is sampled: ``steps`` Euler steps on a ``schedule`` time grid (``rate`` for the
+    exponential grid). Read at every call, so an evaluation may change it on a trained model."""
+
+    steps: int = 4
+    schedule: str = "uniform"
+    rate: float = 2.0
+
+
 class ActionFlowModel(nn.Module):
     """The flow-matching model: ``encode`` an observation once, then ``loss`` (training) or ``sample``."""
 
-    def __init__(self, config):
+    def __init__(self, spec: ModelSpec):
         super().__init__()
-        self.config = config
-        self.flow = make_flow(
-            config.action_space, GRIPPER_DIM, config.rotation_noise_std, config.euclidean_frame
-        )
-        inputs = config.input_features
-        n_tokens, feature_dim = inputs[TOKEN_FEATURES].shape
-        self.image_keys = tuple(config.image_features)
-        self.has_point_cloud = POINT_CLOUD in inputs
+        self.spec = spec
+        self.flow = make_flow(spec.action_space, GRIPPER_DIM, spec.rotation_noise_std, spec.euclidean_frame)
+        self.image_keys = tuple(spec.image_keys)
+        self.has_point_cloud = spec.point_cloud
         self.observation_keys = (TOKEN_POSES, TOKEN_FEATURES, *self.image_keys) + (
             (POINT_CLOUD,) if self.has_point_cloud else ()
         )
         """The observation keys the model reads, each ``[B, T, ...]``."""
-        spec = NetworkSpec(
-            token_feature_dim=feature_dim,
-            tokens_per_step=n_tokens,
-            n_obs_steps=config.n_obs_steps,
-            horizon=config.horizon,
-            action_input_dim=self.flow.network_input_dim,
-            velocity_dim=self.flow.velocity_dim,
-            image_keys=self.image_keys,
-            image_encoder=config.image_encoder,
-            image_placement=config.image_placement,
-            point_cloud=self.has_point_cloud,
-            point_encoder=config.point_encoder,
-            squash_limit=config.squash_limit,
-            squash_mode=config.squash_mode,
-        )
         self.network = ActionFlowNetwork(
-            spec,
-            config.architecture,
-            config.dim,
-            config.num_heads,
-            config.ipa_layers,
-            config.transformer_layers,
-            config.ipa_head_dim,
-            config.ipa_query_points,
-            config.ipa_value_points,
-            config.dropout,
+            NetworkSpec(
+                token_feature_dim=spec.token_feature_dim,
+                tokens_per_step=spec.tokens_per_step,
+                action_input_dim=self.flow.network_input_dim,
+                velocity_dim=self.flow.velocity_dim,
+                **{name: getattr(spec, name) for name in NETWORK_FIELDS},
+            )
         )
 
     def encode(self, obs: dict[str, Tensor]) -> tuple[EEFFrame, SceneTokens]:
         """Adaptation module + encoders, once per chunk: the EEF frame of the current step and the scene
         tokens in it. ``obs`` holds :attr:`observation_keys`, each ``[B, T, ...]``."""
         rot, trans = g.pose9_to_rt(obs[TOKEN_POSES])  # [B, T, N, 3, 3], [B, T, N, 3]
-        frame = EEFFrame(rot[:, -1, 0], trans[:, -1, 0], self.config.translation_scale)
+        frame = EEFFrame(rot[:, -1, 0], trans[:, -1, 0], self.spec.translation_scale)
         rot_l, trans_l = frame.to_local(rot, trans)
         images = {k: obs[k] for k in self.image_keys}
         points = frame.points_to_local(obs[POINT_CLOUD]) if self.has_point_cloud else None
@@ -94,14 +137,14 @@ class ActionFlowModel(nn.Module):
 
         Returns the loss and each unweighted term.
         """
-        shift = self.config.image_random_shift if self.training else 0
+        shift = self.spec.image_random_shift if self.training else 0
         if shift and self.image_keys:
             obs = {**obs, **{k: random_shift(obs[k], shift) for k in self.image_keys}}
         frame, scene = self.encode(obs)
         rot1, trans1 = frame.to_local(*g.pose9_to_rt(action[..., :POSE_DIM]))
         x1 = self.flow.from_poses(SE3State(rot1, trans1, action[..., POSE_DIM:]))
         b = action.shape[0]
-        x0 = self.flow.noise(b, self.config.horizon, device=action.device, dtype=action.dtype)
+        x0 = self.flow.noise(b, self.spec.horizon, device=action.device, dtype=action.dtype)
         t = torch.rand(b, device=action.device, dtype=action.dtype)
         xt, target = self.flow.interpolate(x0, x1, t)
         sq_err = (self.velocity(scene, xt, t) - target) ** 2  # [B, H, D]
@@ -114,40 +157,37 @@ class ActionFlowModel(nn.Module):
             for name, part in LOSS_TERMS.items()
         }
         weights = {
-            "translation": self.config.translation_loss_weight,
-            "rotation": self.config.rotation_loss_weight,
-            "gripper": self.config.gripper_loss_weight,
+            "translation": self.spec.translation_loss_weight,
+            "rotation": self.spec.rotation_loss_weight,
+            "gripper": self.spec.gripper_loss_weight,
         }
         return sum(weights[k] * terms[k] for k in terms), terms
 
-    def sample(self, obs: dict[str, Tensor], noise=None) -> Tensor:
-        """A chunk of world-frame actions ``[B, horizon, 10]`` from ``num_inference_steps`` Euler steps.
+    def sample(self, obs: dict[str, Tensor], noise=None, sampler: Sampler = Sampler()) -> Tensor:
+        """A chunk of world-frame actions ``[B, horizon, 10]`` from ``sampler.steps`` Euler steps.
 
         ``noise`` (optional) is the initial flow state in the EEF frame (an ``SE3State`` for ``se3``, a
         ``[B, H, 10]`` tensor for ``euclidean``); by default it is drawn from torch's global generator.
         """
-        frame, _, states = self._flow_states(obs, noise)
+        frame, _, states = self._flow_states(obs, noise, sampler)
         *_, x = states
         return self.world_actions(frame, x)
 
-    def sample_trajectory(self, obs: dict[str, Tensor], noise=None) -> tuple[Tensor, Tensor]:
+    def sample_trajectory(
+        self, obs: dict[str, Tensor], noise=None, sampler: Sampler = Sampler()
+    ) -> tuple[Tensor, Tensor]:
         """:meth:`sample` with every state kept: the time grid ``[K + 1]`` and the world-frame actions
         ``[K + 1, B, horizon, 10]`` at each of its points, from the noise (t = 0) to the chunk (t = 1); the
         last is :meth:`sample`'s chunk, bit for bit, under the same seed."""
-        frame, grid, states = self._flow_states(obs, noise)
+        frame, grid, states = self._flow_states(obs, noise, sampler)
         return grid, torch.stack([self.world_actions(frame, x) for x in states])
 
-    def _flow_states(self, obs: dict[str, Tensor], noise=None):
+    def _flow_states(self, obs: dict[str, Tensor], noise, sampler: Sampler):
         """The EEF frame, the time grid and the (lazy) Euler states of one chunk's flow."""
         frame, scene = self.encode(obs)
         b, device = obs[TOKEN_POSES].shape[0], obs[TOKEN_POSES].device
-        x = noise if noise is not None else self.flow.noise(b, self.config.horizon, device=device)
-        grid = time_grid(
-            self.config.num_inference_steps,
-            self.config.time_schedule,
-            self.config.time_schedule_rate,
-            device=device,
-        )
+        x = noise if noise is not None else self.flow.noise(b, self.spec.horizon, device=device)
+        grid = time_grid(sampler.steps, sampler.schedule, sampler.rate, device=device)
         return frame, grid, euler_states(self.flow, lambda state, t: self.velocity(scene, state, t), x, grid)
 
     def world_actions(self, frame: EEFFrame, x) -> Tensor:

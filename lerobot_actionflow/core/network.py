@@ -1,14 +1,9 @@
 """The velocity network: observation and action tokens in, one velocity per action step out.
 
 It sees only tensors already brought into the scaled EEF frame by :mod:`lerobot_actionflow.core.adaptation`.
-Three architectures, selected by ``ActionFlowConfig.architecture`` (paper ablations):
-
-* ``"ipa"`` (A.1): every entity is a token with a pose; IPA blocks then a transformer encoder
-  (:class:`~lerobot_actionflow.core.ipa.SE3InvariantTransformer`).
-* ``"multi_token"`` (A.2): the same tokens, their poses embedded into the features by a linear layer,
-  a plain transformer encoder (no IPA).
-* ``"single_token"`` (A.3): all observation tokens concatenated into one conditioning token, plus the
-  action tokens, through a plain transformer encoder.
+The encoders turn each modality into tokens with poses; the architecture's mixer
+(:mod:`lerobot_actionflow.core.mixers`, selected by ``NetworkSpec.architecture``) mixes them with the action
+tokens; a linear head reads one velocity per action token.
 """
 
 from __future__ import annotations
@@ -19,7 +14,6 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.adaptation import squash
 from lerobot_actionflow.core.encoders import (
     ImageEncoder,
@@ -28,7 +22,7 @@ from lerobot_actionflow.core.encoders import (
     VectorEncoder,
     VNPointNetEncoder,
 )
-from lerobot_actionflow.core.ipa import SE3InvariantTransformer, transformer_encoder
+from lerobot_actionflow.core.mixers import MIXERS
 
 
 @dataclass
@@ -71,6 +65,17 @@ class NetworkSpec:
     """Translations reach the network as ``squash_limit * tanh(trans / squash_limit)`` (scaled EEF frame)."""
     squash_mode: str = "axis"
     """``"axis"``: per coordinate (the paper's); ``"radial"``: the distance (see :func:`squash`)."""
+    architecture: str = "ipa"
+    """A key of :data:`~lerobot_actionflow.core.mixers.MIXERS`: ``ipa`` (A.1), ``multi_token`` (A.2),
+    ``single_token`` (A.3)."""
+    dim: int = 128
+    num_heads: int = 4
+    ipa_layers: int = 2
+    transformer_layers: int = 2
+    ipa_head_dim: int = 16
+    ipa_query_points: int = 4
+    ipa_value_points: int = 4
+    dropout: float = 0.0
 
 
 class FlowTimeEmbedding(nn.Module):
@@ -89,27 +94,14 @@ class FlowTimeEmbedding(nn.Module):
         return self.mlp(torch.cat([angles.sin(), angles.cos()], dim=-1))
 
 
-def pose_features(rot: Tensor, trans: Tensor, squash_limit: float, squash_mode: str = "axis") -> Tensor:
-    """Pose as a 9-vector for the non-IPA variants: squashed translation and the 6D rotation."""
-    return torch.cat([squash(trans, squash_limit, squash_mode), g.matrix_to_rot6d(rot)], dim=-1)
-
-
 class ActionFlowNetwork(nn.Module):
-    def __init__(
-        self,
-        spec: NetworkSpec,
-        architecture: str,
-        dim: int,
-        num_heads: int,
-        ipa_layers: int,
-        transformer_layers: int,
-        ipa_head_dim: int,
-        ipa_query_points: int,
-        ipa_value_points: int,
-        dropout: float,
-    ):
+    """Observation and action tokens in (scaled EEF frame), one velocity per action token out."""
+
+    def __init__(self, spec: NetworkSpec):
         super().__init__()
-        self.spec, self.architecture = spec, architecture
+        if spec.architecture not in MIXERS:
+            raise ValueError(f"architecture={spec.architecture!r}; expected one of {tuple(MIXERS)}")
+        self.spec, dim = spec, spec.dim
         self.feature_encoder = VectorEncoder(spec.token_feature_dim, dim)
         image_encoder = ResNet18ImageEncoder if spec.image_encoder == "resnet18" else ImageEncoder
         self.image_encoders = nn.ModuleDict({_module_key(k): image_encoder(dim) for k in spec.image_keys})
@@ -125,28 +117,11 @@ class ActionFlowNetwork(nn.Module):
         self.action_index_embed = nn.Parameter(torch.randn(spec.horizon, dim) * 0.02)
         self.time_embed = FlowTimeEmbedding(dim)
         self.action_input = nn.Linear(spec.action_input_dim, dim)
-
-        if architecture == "ipa":
-            self.mixer = SE3InvariantTransformer(
-                dim,
-                num_heads,
-                ipa_layers,
-                transformer_layers,
-                ipa_head_dim,
-                ipa_query_points,
-                ipa_value_points,
-                dropout,
-            )
-        else:
-            self.pose_embed = nn.Linear(9, dim)
-            self.mixer = nn.Sequential(
-                transformer_encoder(dim, num_heads, transformer_layers, dropout), nn.LayerNorm(dim)
-            )
-        if architecture == "single_token":
-            num_obs_tokens = spec.n_obs_steps * (spec.tokens_per_step + extra_tokens)
-            self.obs_pool = nn.Sequential(
-                nn.Linear(num_obs_tokens * dim, dim), nn.GELU(), nn.Linear(dim, dim)
-            )
+        # The architecture's own modules, registered on the network under the names checkpoints hold.
+        self.mix = MIXERS[spec.architecture]
+        num_obs_tokens = spec.n_obs_steps * (spec.tokens_per_step + extra_tokens)
+        for name, module in self.mix.build(spec, num_obs_tokens).items():
+            self.add_module(name, module)
         self.head = nn.Linear(dim, spec.velocity_dim)
 
     def encode_observation(
@@ -195,10 +170,7 @@ class ActionFlowNetwork(nn.Module):
         s = torch.cat(feats, dim=2) + self.step_embed[None, :, None]  # [B, T, N', C]
         rot, trans = torch.cat(rots, dim=2), torch.cat(transs, dim=2)
         s, rot, trans = s.flatten(1, 2), rot.flatten(1, 2), trans.flatten(1, 2)  # [B, M, ...]
-        if self.architecture != "ipa":
-            s = s + self.pose_embed(self._pose_features(rot, trans))
-        if self.architecture == "single_token":
-            s = self.obs_pool(s.flatten(1))[:, None]  # [B, 1, C]; its pose is unused
+        s = self.mix.observe(self, s, rot, trans)
         squashed = squash(trans, self.spec.squash_limit, self.spec.squash_mode)
         return SceneTokens(s, rot, trans, squashed, self.action_feature + self.action_index_embed)
 
@@ -208,19 +180,8 @@ class ActionFlowNetwork(nn.Module):
         """Velocity ``[B, H, D_v]`` of action tokens at ``act_rot [B, H, 3, 3]``, ``act_trans [B, H, 3]``
         (scaled EEF frame), with per-step inputs ``act_input [B, H, a]`` at flow time ``t [B]``."""
         a = scene.action_embed + self.time_embed(t)[:, None] + self.action_input(act_input)  # [B, H, C]
-        if self.architecture == "ipa":
-            s = torch.cat([scene.features, a], dim=1)
-            rot = torch.cat([scene.rot, act_rot], dim=1)
-            act_squashed = squash(act_trans, self.spec.squash_limit, self.spec.squash_mode)
-            trans = torch.cat([scene.squashed_trans, act_squashed], dim=1)
-            out = self.mixer(s, rot, trans)
-        else:
-            a = a + self.pose_embed(self._pose_features(act_rot, act_trans))
-            out = self.mixer(torch.cat([scene.features, a], dim=1))
+        out = self.mix.mix(self, scene, a, act_rot, act_trans)
         return self.head(out[:, -a.shape[1] :])
-
-    def _pose_features(self, rot: Tensor, trans: Tensor) -> Tensor:
-        return pose_features(rot, trans, self.spec.squash_limit, self.spec.squash_mode)
 
 
 def _module_key(feature_key: str) -> str:
