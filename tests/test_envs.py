@@ -10,9 +10,10 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from gym_actionflow.base import HOME_POS, HOME_ROT, WORKSPACE_HIGH, WORKSPACE_LOW, ManipulationEnv
+from gym_actionflow.base import HOME_POS, HOME_ROT, WORKSPACE_HIGH, WORKSPACE_LOW
 from gym_actionflow.geometry import pose9
 from gym_actionflow.registry import load
+from gym_actionflow.shell import TokenEnv
 from gymnasium.utils.env_checker import check_env
 from scipy.spatial.transform import Rotation
 
@@ -34,13 +35,14 @@ def test_check_env(env_id, variant):
     env.close()
 
 
-@pytest.mark.parametrize("env_id", OUR_SCENES)
+@pytest.mark.parametrize("env_id", IDS)
 def test_tasks_fill_hooks_and_compute_success_once_per_step(env_id):
-    """Guards against a task re-implementing the control loop (and drifting from the others): no task
-    overrides reset, step or _observation, and a step evaluates the success rule exactly once."""
+    """Guards against a task or a simulator (our scenes, robosuite) re-implementing the env shell (and
+    drifting from the others): none overrides reset, step or _observation, and a step evaluates the success
+    rule exactly once."""
     cls = load(BY_ID[env_id].entry_point)
-    for name in ("reset", "step", "_observation"):
-        assert getattr(cls, name) is getattr(ManipulationEnv, name), f"{cls.__name__} overrides {name}"
+    for name in ("reset", "step", "_observation", "_conclude"):
+        assert getattr(cls, name) is getattr(TokenEnv, name), f"{cls.__name__} overrides {name}"
     env = gym.make(env_id).unwrapped
     obs, _ = env.reset(seed=0)
     checks = []

@@ -1,49 +1,29 @@
-"""Shared base of every gym_actionflow task: scene, robot, control, token observations, rendering.
+"""Our own MuJoCo scenes: the simulator of every gym_actionflow task but robosuite's (table, Panda, control).
 
-A task subclasses :class:`ManipulationEnv` and fills hooks; it never overrides ``reset``, ``step`` or
-``_observation`` (an ``__init__`` that only adds the task's own keywords is fine). Required hooks:
+:class:`ManipulationEnv` fills the simulator hooks of the env shell (:class:`gym_actionflow.shell.TokenEnv`,
+which owns reset, step, the observation, success and rendering, and lists the hooks every task fills:
+``_entity_poses``, ``_check_success`` and the optional ones). A task on our scenes subclasses it; it never
+overrides ``reset``, ``step`` or ``_observation`` (an ``__init__`` that only adds the task's own keywords is
+fine), and also fills:
 
 * ``_build_task(spec)``: add its objects and fixtures to the ``MjSpec``;
 * ``_cache_refs()``: look up the ids it needs in the compiled model;
-* ``_sample_layout(rng)``: place objects from ``self.np_random`` for the current ``variant``;
-* ``_entity_poses()``: the world pose of each non-EEF token, in ``entity_names`` order;
-* ``_check_success()``: the success rule, free of side effects.
+* ``_sample_layout(rng)``: place objects from ``self.np_random`` for the current ``variant``.
 
-Optional hooks (the default does nothing):
-
-* ``_task_scalars()``: per-token task scalars, named by ``scalar_names`` (a lid angle...);
-* ``_after_reset()``: after the layout is placed and the scene settled, before the first observation (let a
-  held object settle in the hand, clear a counter);
-* ``_after_physics()``: once per control step, right after the physics and before the success check (advance
-  a counter the success rule reads);
-* ``_show_success(success)``: show the task state in the scene before the observation renders (a lit bulb);
-* ``_extra_observation_spaces()`` / ``_extra_observation()``: observation keys beyond the tokens (a point
-  cloud);
-* ``_wrist_image()``: the wrist image of ``obs_mode="pixels"`` (default: as rendered; a task may mask it,
-  ``_geom_ids`` tells which geom each pixel shows).
-
-One control step: action -> IK -> physics -> ``_after_physics`` -> success (computed once) ->
-``_show_success`` -> observation. A reset: robot home -> ``_sample_layout`` -> settle -> ``_after_reset`` ->
-success -> ``_show_success`` -> observation.
+The simulation of one control step: IK on the rate-limited target -> joint targets (velocity-limited) ->
+``SUBSTEPS`` physics steps. Of a reset: robot home -> ``_sample_layout`` -> settle one control step.
 """
 
 from __future__ import annotations
 
-import atexit
-import functools
-from collections.abc import Callable
-from typing import Any, ClassVar
-
-import gymnasium as gym
 import mujoco
 import numpy as np
-from gymnasium import spaces
 
-from gym_actionflow.geometry import axis_angle_matrix, gram_schmidt, pose9, rotation_angle, rotation_log
-from gym_actionflow.registry import OBS_MODES, check_choice
-from gym_actionflow.robot import MAX_FINGER, WRIST_CAMERA, PoseController, RobotRefs, add_panda
+from gym_actionflow.robot import MAX_FINGER, PoseController, RobotRefs, add_panda
+from gym_actionflow.shell import CONTROL_HZ, TokenEnv
+from gym_actionflow.shell import POSITION_BOUND as POSITION_BOUND  # re-exported: tasks read it from here
+from gym_actionflow.shell import TOKEN_EEF as TOKEN_EEF  # re-exported
 
-CONTROL_HZ = 20
 SUBSTEPS = 25
 TIMESTEP = 1.0 / (CONTROL_HZ * SUBSTEPS)
 ROBOT_BASE = (-0.56, 0.0, 0.0)
@@ -52,11 +32,6 @@ TABLE_TOP = 0.0
 WORKSPACE_LOW = np.array([-0.35, -0.40, 0.005])
 WORKSPACE_HIGH = np.array([0.35, 0.40, 0.60])
 """Action targets are clipped to this box (metres, world frame)."""
-MAX_STEP_POS = 0.03
-MAX_STEP_ROT = 0.3
-"""Rate limit of the commanded TCP target per control step (m, rad): larger jumps are cut short."""
-MAX_JOINT_STEP = np.array([2.175] * 4 + [2.61] * 3) / CONTROL_HZ
-"""Cap on the per-step change of the arm joint targets: Panda joint velocity limits (rad/s) over 50 ms."""
 HOME_POS = np.array([-0.12, 0.0, 0.30])
 HOME_ROT = np.diag([1.0, -1.0, -1.0])
 """Start pose: TCP 30 cm above the table, fingers pointing down, closing along the world y axis."""
@@ -67,166 +42,18 @@ impedance 0.9-0.95) lets a light object sink in proportion to the force on it: t
 pushed it 4 cm into the table. A time constant of two physics steps (the stiffest stable one, as the finger
 pads') and impedance rising to 0.999 within 1 mm make the same press sink it about a millimetre, and resting
 objects a few micrometres (eval/results/envs_cpu.md). Impedance 0.99 let a pressed needle sink 4.8 mm."""
-POSITION_BOUND = 5.0
-SCALAR_BOUND = 10.0
-"""Observation-space bounds: positions within 5 m of the table centre, task scalars within +-10."""
 _HOME_SEED = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.0])
 
 
-def _close_renderers(renderers: dict[str, mujoco.Renderer]) -> None:
-    for renderer in renderers.values():
-        renderer.close()
-    renderers.clear()
-
-
-# ---------------------------------------------------------------------- the token contract
-# Every gym_actionflow env, whatever simulates it (our MuJoCo scenes or robosuite's environments), speaks
-# through these four functions: the same observation keys and bounds, the same action and its limits.
-
-
-def token_observation_space(
-    n_tokens: int,
-    n_scalars: int,
-    extra: dict[str, spaces.Space] | None = None,
-    pixels: tuple[int, int, int] | None = None,
-) -> spaces.Dict:
-    """``token_poses`` (N, 9), ``token_features`` (N, N + 1 + n_scalars), ``agent_pos`` (10,),
-    ``environment_state`` (9 (N - 1),), the task's ``extra`` keys and, with ``pixels`` (H, W, 3), the wrist
-    image under ``pixels/wrist``."""
-    n = n_tokens
-    pose_high = np.array([POSITION_BOUND] * 3 + [1.0] * 6, dtype=np.float32)
-    feat_high = np.concatenate([np.ones(n), [2 * MAX_FINGER], np.full(n_scalars, SCALAR_BOUND)])
-    feat_low = np.concatenate([np.zeros(n + 1), np.full(n_scalars, -SCALAR_BOUND)])
-    state_high = np.concatenate([pose_high, [2 * MAX_FINGER]]).astype(np.float32)
-    state_low = np.concatenate([-pose_high, [0.0]]).astype(np.float32)
-    obs = {
-        "token_poses": spaces.Box(-np.tile(pose_high, (n, 1)), np.tile(pose_high, (n, 1)), dtype=np.float32),
-        "token_features": spaces.Box(
-            np.tile(feat_low, (n, 1)).astype(np.float32),
-            np.tile(feat_high, (n, 1)).astype(np.float32),
-            dtype=np.float32,
-        ),
-        "agent_pos": spaces.Box(state_low, state_high, dtype=np.float32),
-        "environment_state": spaces.Box(
-            -np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32
-        ),
-        **(extra or {}),
-    }
-    if pixels is not None:
-        obs["pixels"] = spaces.Dict({"wrist": spaces.Box(0, 255, pixels, dtype=np.uint8)})
-    return spaces.Dict(obs)
-
-
-def token_observation(
-    tcp: tuple[np.ndarray, np.ndarray],
-    entities: list[tuple[np.ndarray, np.ndarray]],
-    opening: float,
-    scalars: np.ndarray,
-) -> dict[str, np.ndarray]:
-    """The token keys of an observation: token 0 is the TCP, then one token per entity; each token's feature
-    is its one-hot index, the gripper opening (EEF token only) and the task scalars."""
-    n = 1 + len(entities)
-    poses = np.empty((n, 9), dtype=np.float32)
-    poses[0] = pose9(*tcp)
-    for i, (p, r) in enumerate(entities, start=1):
-        poses[i] = pose9(p, r)
-    scalars = np.asarray(scalars)
-    feats = np.zeros((n, n + 1 + scalars.shape[1]), dtype=np.float32)
-    feats[np.arange(n), np.arange(n)] = 1.0
-    feats[0, n] = opening
-    feats[:, n + 1 :] = scalars
-    return {
-        "token_poses": poses,
-        "token_features": feats,
-        "agent_pos": np.concatenate([poses[0], [opening]]).astype(np.float32),
-        "environment_state": poses[1:].reshape(-1).copy(),
-    }
-
-
-def subtree_geoms(model: mujoco.MjModel, body_name: str) -> set[int]:
-    """Ids of every geom in the body ``body_name`` and its descendants."""
-    root = model.body(body_name).id
-    ids = set()
-    for g in range(model.ngeom):
-        b = model.geom_bodyid[g]
-        while b not in (0, root):
-            b = model.body_parentid[b]
-        if b == root:
-            ids.add(g)
-    return ids
-
-
-def pose_action_space(low: np.ndarray, high: np.ndarray) -> spaces.Box:
-    """The action: target TCP position within [low, high] (m), two rotation columns, gripper command."""
-    return spaces.Box(
-        np.concatenate([low, -np.ones(6), [-1.0]]).astype(np.float32),
-        np.concatenate([high, np.ones(6), [1.0]]).astype(np.float32),
-        dtype=np.float32,
-    )
-
-
-def parse_pose_action(action, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """(position clipped to [low, high], rotation by Gram-Schmidt, gripper in [-1, 1]) of a 10-d action; a
-    wrong shape or a NaN is a ValueError saying what was expected."""
-    a = np.asarray(action, dtype=np.float64)
-    if a.shape != (10,):
-        raise ValueError(
-            f"action has shape {a.shape}; expected (10,): target TCP pose [x, y, z, r00, r10, r20, r01, "
-            "r11, r21] in the world frame + gripper command in [-1 open, 1 close]"
-        )
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"action contains NaN or inf: {np.array2string(a, precision=4)}")
-    return np.clip(a[:3], low, high), gram_schmidt(a[3:6], a[6:9]), float(np.clip(a[9], -1.0, 1.0))
-
-
-def rate_limit(
-    prev_pos: np.ndarray, prev_rot: np.ndarray, pos: np.ndarray, rot: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The target (pos, rot) cut to at most ``MAX_STEP_POS`` and ``MAX_STEP_ROT`` from the previous one."""
-    delta = pos - prev_pos
-    dist = np.linalg.norm(delta)
-    if dist > MAX_STEP_POS:
-        pos = prev_pos + delta * (MAX_STEP_POS / dist)
-    rel = rotation_log(prev_rot.T @ rot)
-    angle = np.linalg.norm(rel)
-    if angle > MAX_STEP_ROT:
-        rot = prev_rot @ axis_angle_matrix(rel * (MAX_STEP_ROT / angle))
-    return pos, rot
-
-
-class ManipulationEnv(gym.Env):
+class ManipulationEnv(TokenEnv):
     """Franka Panda at a table, controlled by absolute TCP pose targets (see the task classes for details)."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}
-    entity_names: ClassVar[tuple[str, ...]] = ()
-    scalar_names: ClassVar[tuple[str, ...]] = ()
-    variants: ClassVar[tuple[str, ...]] = ("D0", "D1")
-    """Initial-state distributions (``variant=``); the first is the default."""
-    task_description: ClassVar[str] = ""
-    default_image_size: ClassVar[int] = 84
-    """Side of the square wrist image when ``image_size`` is not given."""
+    variants = ("D0", "D1")
+    workspace_low = WORKSPACE_LOW
+    workspace_high = WORKSPACE_HIGH
+    render_camera = "front"
 
-    def __init__(
-        self,
-        variant: str | None = None,
-        obs_mode: str = "state",
-        render_mode: str | None = "rgb_array",
-        terminate_on_success: bool = True,
-        image_size: int | None = None,
-        render_size: tuple[int, int] = (240, 320),
-    ) -> None:
-        variant = self.variants[0] if variant is None else variant
-        check_choice("variant", variant, self.variants, f" for {type(self).__name__}")
-        check_choice("obs_mode", obs_mode, OBS_MODES, " ('pixels' = state + wrist camera)")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode={render_mode!r}; only 'rgb_array' (or None) is supported")
-        self.variant = variant
-        self.obs_mode = obs_mode
-        self.render_mode = render_mode
-        self.terminate_on_success = terminate_on_success
-        self.image_size = int(self.default_image_size if image_size is None else image_size)
-        self.render_size = tuple(render_size)
-
+    def _initialize_simulation(self) -> None:
         spec = self._build_scene()
         self._build_task(spec)
         self.model = spec.compile()
@@ -236,20 +63,28 @@ class ManipulationEnv(gym.Env):
         self.home_q = self.controller.solve(_HOME_SEED, HOME_POS, HOME_ROT)
         self.controller.rest = self.home_q.copy()
         self._cache_refs()
-        self._renderers: dict[str, mujoco.Renderer] = {}
-        self._exit_hook: Callable[[], None] | None = None
         self._target_pos = HOME_POS.copy()
         self._target_rot = HOME_ROT.copy()
         self._q_target = self.home_q.copy()
 
-        self.feature_dim = self.n_tokens + 1 + len(self.scalar_names)
-        self.observation_space = token_observation_space(
-            self.n_tokens, len(self.scalar_names), self._extra_observation_spaces(), self._pixel_shape()
-        )
-        self.action_space = pose_action_space(WORKSPACE_LOW, WORKSPACE_HIGH)
+    def _reset_simulation(self) -> None:
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[self.robot.qpos] = self.home_q
+        d.qpos[self.robot.finger_qpos] = MAX_FINGER
+        d.ctrl[self.robot.arm_ctrl] = self.home_q
+        d.ctrl[self.robot.finger_ctrl] = MAX_FINGER
+        self._q_target = self.home_q.copy()
+        self._target_pos, self._target_rot = HOME_POS.copy(), HOME_ROT.copy()
+        self._sample_layout(self.np_random)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_step(m, d, nstep=SUBSTEPS)  # let resting contacts settle
 
-    def _pixel_shape(self) -> tuple[int, int, int] | None:
-        return (self.image_size, self.image_size, 3) if self.obs_mode == "pixels" else None
+    def _step_simulation(self, pos: np.ndarray, rot: np.ndarray, grip: float) -> None:
+        d = self.data
+        d.ctrl[self.robot.arm_ctrl] = self._solve_joint_targets(self.controller, pos, rot)
+        d.ctrl[self.robot.finger_ctrl] = MAX_FINGER * (1.0 - grip) / 2.0
+        mujoco.mj_step(self.model, d, nstep=SUBSTEPS)
 
     # ------------------------------------------------------------------ scene
     def _build_scene(self) -> mujoco.MjSpec:
@@ -301,49 +136,7 @@ class ManipulationEnv(gym.Env):
     def _sample_layout(self, rng: np.random.Generator) -> None:
         raise NotImplementedError
 
-    def _entity_poses(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        raise NotImplementedError
-
-    def _task_scalars(self) -> np.ndarray:
-        """(n_tokens, len(scalar_names)) task scalars, e.g. a lid angle on the machine token."""
-        return np.zeros((self.n_tokens, len(self.scalar_names)))
-
-    def _check_success(self) -> bool:
-        raise NotImplementedError
-
-    def _after_reset(self) -> None:
-        """After the layout is placed and the scene settled, before the first observation (default: none)."""
-
-    def _after_physics(self) -> None:
-        """Once per control step, after the physics, before the success check (default: nothing)."""
-
-    def _show_success(self, success: bool) -> None:
-        """Show the task state in the scene before the observation renders (default: nothing)."""
-
-    def _extra_observation_spaces(self) -> dict[str, spaces.Space]:
-        """Spaces of the observation keys the task adds beyond the tokens (default: none)."""
-        return {}
-
-    def _extra_observation(self) -> dict[str, np.ndarray]:
-        """Values of the keys of :meth:`_extra_observation_spaces` for the current state."""
-        return {}
-
-    def _wrist_image(self) -> np.ndarray:
-        """The wrist image of the observation, (image_size, image_size, 3) uint8 (default: as rendered)."""
-        return self._render_camera(WRIST_CAMERA, self.image_size, self.image_size)
-
     # ------------------------------------------------------------------ helpers for tasks
-    @property
-    def task(self) -> str:
-        """The task's name (``Stack``, ``Coffee``...); ``task_description`` is the instruction in words.
-
-        Vectorised evaluators (LeRobot's ``lerobot-eval``) read both attributes from every sub-env."""
-        return type(self).__name__.removesuffix("Env")
-
-    @property
-    def n_tokens(self) -> int:
-        return 1 + len(self.entity_names)
-
     def body_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:
         return self.data.xpos[body_id].copy(), self.data.xmat[body_id].reshape(3, 3).copy()
 
@@ -351,10 +144,6 @@ class ManipulationEnv(gym.Env):
         adr = self.model.joint(joint_name).qposadr[0]
         self.data.qpos[adr : adr + 3] = pos
         self.data.qpos[adr + 3 : adr + 7] = quat
-
-    def geoms_of(self, body_name: str) -> set[int]:
-        """Ids of every geom in a body and its descendants."""
-        return subtree_geoms(self.model, body_name)
 
     def touching(self, geoms_a: set[int], geoms_b: set[int]) -> bool:
         for i in range(self.data.ncon):
@@ -376,117 +165,3 @@ class ManipulationEnv(gym.Env):
         return self.data.site_xpos[self.robot.tcp].copy(), self.data.site_xmat[self.robot.tcp].reshape(
             3, 3
         ).copy()
-
-    # ------------------------------------------------------------------ gym API
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        m, d = self.model, self.data
-        mujoco.mj_resetData(m, d)
-        d.qpos[self.robot.qpos] = self.home_q
-        d.qpos[self.robot.finger_qpos] = MAX_FINGER
-        d.ctrl[self.robot.arm_ctrl] = self.home_q
-        d.ctrl[self.robot.finger_ctrl] = MAX_FINGER
-        self._q_target = self.home_q.copy()
-        self._target_pos, self._target_rot = HOME_POS.copy(), HOME_ROT.copy()
-        self._sample_layout(self.np_random)
-        mujoco.mj_forward(m, d)
-        mujoco.mj_step(m, d, nstep=SUBSTEPS)  # let resting contacts settle
-        self._after_reset()
-        obs, success = self._conclude()
-        return obs, {"is_success": success}
-
-    def step(self, action):
-        pos, rot, grip = parse_pose_action(action, WORKSPACE_LOW, WORKSPACE_HIGH)
-        pos, rot = rate_limit(self._target_pos, self._target_rot, pos, rot)
-        self._target_pos, self._target_rot = pos, rot
-        q = self.controller.solve(self._q_target, pos, rot)
-        # Joint velocity limit: an IK branch switch can never fling the arm.
-        self._q_target = self._q_target + np.clip(q - self._q_target, -MAX_JOINT_STEP, MAX_JOINT_STEP)
-        d = self.data
-        d.ctrl[self.robot.arm_ctrl] = self._q_target
-        d.ctrl[self.robot.finger_ctrl] = MAX_FINGER * (1.0 - grip) / 2.0
-        mujoco.mj_step(self.model, d, nstep=SUBSTEPS)
-        self._after_physics()
-        obs, success = self._conclude()
-        terminated = bool(success and self.terminate_on_success)
-        return obs, float(success), terminated, False, {"is_success": success}
-
-    def _conclude(self) -> tuple[dict[str, Any], bool]:
-        """The end of a reset or a step: success computed once, shown in the scene, then the observation."""
-        success = self.is_success()
-        self._show_success(success)
-        return self._observation(), success
-
-    def is_success(self) -> bool:
-        """The task's success rule on the current state (no side effects)."""
-        return bool(self._check_success())
-
-    def _observation(self) -> dict[str, Any]:
-        obs = token_observation(
-            self.tcp_pose(), self._entity_poses(), self.gripper_opening(), self._task_scalars()
-        )
-        obs.update(self._extra_observation())
-        if self.obs_mode == "pixels":
-            obs["pixels"] = {"wrist": self._wrist_image()}
-        return obs
-
-    # ------------------------------------------------------------------ rendering
-    def _renderer(
-        self, height: int, width: int, depth: bool = False, segmentation: bool = False
-    ) -> mujoco.Renderer:
-        """A cached offscreen renderer of this size and kind (RGB, depth or segmentation), freed by close() or
-        at exit."""
-        if depth and segmentation:
-            raise ValueError("a renderer renders depth or segmentation, not both")
-        key = f"{'depth' if depth else 'segmentation' if segmentation else 'rgb'}:{height}x{width}"
-        renderer = self._renderers.get(key)
-        if renderer is None:
-            try:
-                renderer = mujoco.Renderer(self.model, height=height, width=width)
-            except mujoco.FatalError as err:
-                raise RuntimeError(
-                    f"offscreen rendering failed ({err}). Set MUJOCO_GL=egl (or osmesa) in the environment, "
-                    "or import gym_actionflow before mujoco, so MuJoCo picks a headless GL backend."
-                ) from err
-            if depth:
-                renderer.enable_depth_rendering()
-            if segmentation:
-                renderer.enable_segmentation_rendering()
-            self._renderers[key] = renderer
-            if self._exit_hook is None:
-                # Free GL contexts at exit before MuJoCo's own EGL shutdown hook (registered earlier, so it
-                # runs later), even when close() is never called; otherwise EGL errors are printed at exit.
-                self._exit_hook = functools.partial(_close_renderers, self._renderers)
-                atexit.register(self._exit_hook)
-        return renderer
-
-    def _render_camera(self, camera: str, height: int, width: int) -> np.ndarray:
-        renderer = self._renderer(height, width)
-        renderer.update_scene(self.data, camera=camera)
-        return renderer.render().copy()
-
-    def _geom_ids(self, camera: str, height: int, width: int) -> np.ndarray:
-        """(height, width) int32: the id of the geom each pixel of ``camera``'s image shows, -1 where none
-        (the background). Pixel-aligned with :meth:`_render_camera` of the same size (MuJoCo's segmentation
-        rendering, a separate cached renderer)."""
-        renderer = self._renderer(height, width, segmentation=True)
-        renderer.update_scene(self.data, camera=camera)
-        seg = renderer.render()  # [H, W, 2]: (object id, object type) per pixel, (-1, -1) for the background
-        return np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1).astype(np.int32)
-
-    def render(self) -> np.ndarray | None:
-        if self.render_mode is None:
-            return None
-        return self._render_camera("front", *self.render_size)
-
-    def close(self) -> None:
-        _close_renderers(self._renderers)
-        if self._exit_hook is not None:
-            atexit.unregister(self._exit_hook)
-            self._exit_hook = None
-
-    # ------------------------------------------------------------------ diagnostics
-    def tracking_error(self) -> tuple[float, float]:
-        """(position m, rotation rad) between the commanded target and the TCP."""
-        pos, rot = self.tcp_pose()
-        return float(np.linalg.norm(pos - self._target_pos)), rotation_angle(rot, self._target_rot)

@@ -9,6 +9,8 @@ import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import gymnasium as gym
+
 OBS_MODES = ("state", "pixels")
 """``state``: token observations; ``pixels``: the same plus the wrist camera."""
 
@@ -55,6 +57,13 @@ def find_task(name: str) -> TaskSpec:
             return task
     known = ", ".join(task.name for task in TASKS)
     raise ValueError(f"unknown task {name!r}; gym_actionflow has: {known}")
+
+
+def make_env(task: str, variant: str | None = None, **kwargs) -> gym.Env:
+    """``gym.make`` of a task given by name (as :func:`find_task` reads it) on ``variant`` (default: the
+    task's first) with any other env keyword: ``make_env("MugHanging", "test", mug_yaw="slight")``."""
+    spec = find_task(task)
+    return gym.make(spec.env_id, **spec.kwargs(variant), **kwargs)
 
 
 def load(entry_point: str) -> type:

@@ -4,9 +4,11 @@ A task expert subclasses :class:`ScriptedExpert` and writes its plan as a genera
 reading object poses from the simulator when each phase starts, so the plan follows objects that moved:
 
     def script(self):
-        yield from self.move_to(above_cube, grasp_rot)
-        yield from self.move_to(at_cube, grasp_rot)
-        yield from self.close_gripper()
+        yield from self.grasp(at_cube, grasp_rot, lift=0.1)  # down from above, close, lift
+        yield from self.move_to(above_target, grasp_rot)
+        yield from self.set_gripper(OPEN)
+
+A grasp that may miss is retried with :meth:`ScriptedExpert.grasp_until_held`, the one retry loop.
 
 ``noise`` makes demonstrations diverse: per-episode offsets of the waypoints (drawn once per phase) and a
 per-step jitter on the emitted pose, both scaled by ``noise`` (0 gives a deterministic expert).
@@ -14,14 +16,15 @@ per-step jitter on the emitted pose, both scaled by ``noise`` (0 gives a determi
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 
-from gym_actionflow.base import ManipulationEnv
 from gym_actionflow.geometry import axis_angle_matrix, pose9, rotation_angle, rotation_log
 from gym_actionflow.rollout import Episode, rollout
-from gym_actionflow.tasks.robomimic import RobosuiteTaskEnv
+from gym_actionflow.shell import TokenEnv
 
 OPEN, CLOSE = -1.0, 1.0
 JITTER_POS = 0.002
@@ -39,8 +42,8 @@ class ScriptedExpert:
     """Default rotation speed, radians per control step."""
 
     def __init__(self, env: gym.Env, noise: float = 0.0, seed: int | None = None) -> None:
-        self.env: ManipulationEnv = env.unwrapped  # type: ignore[assignment]
-        if not isinstance(self.env, ManipulationEnv | RobosuiteTaskEnv):
+        self.env: TokenEnv = env.unwrapped  # type: ignore[assignment]
+        if not isinstance(self.env, TokenEnv):
             raise TypeError(
                 f"{type(self).__name__} drives gym_actionflow envs; got {type(self.env).__name__}"
             )
@@ -138,6 +141,58 @@ class ScriptedExpert:
         self.grip = command
         yield from self.hold(steps)
 
+    def grasp(
+        self,
+        pos,
+        rot,
+        *,
+        lift: float | None = None,
+        lift_z: float | None = None,
+        approach: float = 0.08,
+        speed: float = 0.012,
+        tolerance: float = 0.003,
+        close_steps: int = 6,
+        lift_speed: float = 0.015,
+        fine_jitter: float | None = None,
+    ) -> Iterator[np.ndarray]:
+        """Grasp from above: to ``approach`` metres over the grasp pose (pos, rot), straight down to it at
+        ``speed`` (then within ``tolerance``), close the fingers over ``close_steps`` steps, and lift straight
+        up at ``lift_speed``: ``lift`` metres, or to the height ``lift_z``. ``fine_jitter`` scales the
+        per-step jitter from the descent to the closed grasp (then back to 1), where the fingers have little
+        clearance around the object. Whether the object is held is the caller's to check
+        (:meth:`grasp_until_held` retries until it is)."""
+        if (lift is None) == (lift_z is None):
+            raise ValueError(f"give one of lift (m over the grasp) and lift_z (a height): {lift=}, {lift_z=}")
+        pos = np.asarray(pos, dtype=np.float64)
+        yield from self.move_to(pos + [0, 0, approach], rot)
+        if fine_jitter is not None:
+            self.jitter_scale = fine_jitter
+        yield from self.move_to(pos, rot, speed=speed, tolerance=tolerance)
+        yield from self.set_gripper(CLOSE, steps=close_steps)
+        if fine_jitter is not None:
+            self.jitter_scale = 1.0
+        up = pos + [0, 0, lift] if lift is not None else np.array([pos[0], pos[1], lift_z])
+        yield from self.move_to(up, rot, speed=lift_speed)
+
+    def grasp_until_held(
+        self,
+        attempt: Callable[[], Generator[np.ndarray, None, Any]],
+        held: Callable[[], bool],
+        attempts: int = 3,
+        release_steps: int = 6,
+    ) -> Generator[np.ndarray, None, Any]:
+        """Run ``attempt`` (one grasp, typically through :meth:`grasp`, reading the object's pose when it
+        starts, so that a retry follows an object a miss has pushed) until ``held()``, at most ``attempts``
+        times, opening the fingers for ``release_steps`` steps after each miss. Returns what the last attempt
+        returned (e.g. its grasp rotation, which the carry keeps)."""
+        result = None
+        for _ in range(attempts):
+            result = yield from attempt()
+            if held():
+                break
+            yield from self.set_gripper(OPEN, steps=release_steps)
+        return result
+
 
 def run_episode(
     env: gym.Env,
@@ -155,7 +210,7 @@ def run_episode(
     )
 
 
-def object_in_tcp(env: ManipulationEnv, body_id: int) -> tuple[np.ndarray, np.ndarray]:
+def object_in_tcp(env: TokenEnv, body_id: int) -> tuple[np.ndarray, np.ndarray]:
     """Pose of a body in the TCP frame, (position (3,), rotation (3, 3)): how an object sits in the hand."""
     tcp_pos, tcp_rot = env.tcp_pose()
     pos, rot = env.body_pose(body_id)

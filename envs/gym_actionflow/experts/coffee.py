@@ -59,10 +59,7 @@ class CoffeeExpert(ScriptedExpert):
         # along the narrow (1.8 cm) pads would hold the round pod near a pad edge, from which it slides out.
         off = rot @ (self.offset() * np.array([0.3, 1.0, 0.3]))
         grasp = pod + np.array([0.0, 0.0, GRASP_ABOVE_CENTER]) + off
-        yield from self.move_to(grasp + [0, 0, 0.08], rot)
-        yield from self.move_to(grasp, rot, speed=0.012)
-        yield from self.set_gripper(CLOSE, steps=6)
-        yield from self.move_to(grasp + [0, 0, 0.10], rot, speed=0.015)
+        yield from self.grasp(grasp, rot, lift=0.10)
 
     def drop_into_holder(self):
         env = self.env

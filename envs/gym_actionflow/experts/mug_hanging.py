@@ -26,7 +26,6 @@ import numpy as np
 
 from gym_actionflow.base import TABLE_TOP
 from gym_actionflow.experts.base import (
-    CLOSE,
     OPEN,
     ScriptedExpert,
     symmetric_yaw,
@@ -118,12 +117,8 @@ class MugHangingExpert(ScriptedExpert):
         # Offsets mostly along the pads (TCP x); across them (TCP y) the open fingers clear the body by 8 mm.
         off = grasp_rot @ (self.offset() * np.array([0.5, 0.3, 0.3]))
         grasp = pos + np.array([0.0, 0.0, MUG_HEIGHT - GRASP_BELOW_RIM]) + off
-        yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-        self.jitter_scale = PRECISE_JITTER
-        yield from self.move_to(grasp, grasp_rot, speed=0.008, tolerance=0.002)
-        yield from self.set_gripper(CLOSE, steps=8)
-        self.jitter_scale = 1.0
-        yield from self.move_to(grasp + [0, 0, 0.12], grasp_rot, speed=0.015)
+        yield from self.grasp(grasp, grasp_rot, speed=0.008, tolerance=0.002, close_steps=8, lift=0.12,
+                              fine_jitter=PRECISE_JITTER)
 
     def hang_rotation(self, in_hand) -> np.ndarray:
         """Mug rotation for the slide: upright, the handle's opening (mug y) along the peg's heading.

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from gym_actionflow.experts.base import (
-    CLOSE,
     OPEN,
     ScriptedExpert,
     object_in_tcp,
@@ -22,21 +21,22 @@ from gym_actionflow.geometry import axis_angle_matrix, yaw_matrix, yaw_of
 _HOME_YAW = top_down(0.0).T
 """Multiplying a top-down TCP rotation by this leaves its yaw relative to the start pose."""
 
+
 class LiftExpert(ScriptedExpert):
     """Grasp the cube from above, across its faces, and lift it."""
 
     def script(self):
         env = self.env
-        for _ in range(3):
+
+        def grasp_cube():
             pos, rot = env.body_pose(env.cube_id)
             grasp_rot = top_down(symmetric_yaw(yaw_of(rot), np.pi / 2))
             grasp = pos + self.offset() * np.array([1.0, 1.0, 0.3])
-            yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-            yield from self.move_to(grasp, grasp_rot, speed=0.012)
-            yield from self.set_gripper(CLOSE, steps=8)
-            yield from self.move_to(grasp + [0, 0, 0.15], grasp_rot, speed=0.012)
+            yield from self.grasp(grasp, grasp_rot, close_steps=8, lift=0.15, lift_speed=0.012)
             yield from self.hold(10)
-            yield from self.set_gripper(OPEN, steps=6)  # reached only when the cube slipped out
+
+        # Lifted is success, which ends the episode: the cube is grasped again only when it slipped out.
+        yield from self.grasp_until_held(grasp_cube, held=env.is_success)
 
 
 class CanExpert(ScriptedExpert):
@@ -45,17 +45,14 @@ class CanExpert(ScriptedExpert):
     def script(self):
         env = self.env
         can_geoms = env.geoms_of("Can_main")
-        for _ in range(3):
+        grasp_rot = top_down(0.0)
+
+        def grasp_can():
             pos, _ = env.body_pose(env.can_id)
-            grasp_rot = top_down(0.0)
             grasp = pos + np.array([0.0, 0.0, 0.02]) + self.offset() * np.array([1.0, 1.0, 0.3])
-            yield from self.move_to(grasp + [0, 0, 0.1], grasp_rot)
-            yield from self.move_to(grasp, grasp_rot, speed=0.012)
-            yield from self.set_gripper(CLOSE, steps=8)
-            yield from self.move_to(grasp + [0, 0, 0.15], grasp_rot, speed=0.015)
-            if env.is_grasped(can_geoms):
-                break
-            yield from self.set_gripper(OPEN, steps=6)
+            yield from self.grasp(grasp, grasp_rot, approach=0.1, close_steps=8, lift=0.15)
+
+        yield from self.grasp_until_held(grasp_can, held=lambda: env.is_grasped(can_geoms))
         target = env.target_pos + self.offset(2.0) * np.array([1.0, 1.0, 0.0])
         held = env.body_pose(env.can_id)[0]
         tcp = env.tcp_pose()[0]
@@ -74,23 +71,19 @@ class SquareExpert(ScriptedExpert):
     def script(self):
         env = self.env
         nut_geoms = env.geoms_of("SquareNut_main")
-        for _ in range(3):
+
+        def grasp_nut():
             handle, _ = env.site_pose(env.handle_site)
             nut_rot = env.body_pose(env.nut_id)[1]
             # Fingers across the handle; of the two such grasps, the one nearer the wrist's start.
             grasp_rot = top_down(symmetric_yaw(yaw_of(nut_rot), np.pi))
             grasp = handle + self.offset(0.5) * np.array([1.0, 1.0, 0.3])
-            yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-            yield from self.move_to(grasp, grasp_rot, speed=0.01)
-            yield from self.set_gripper(CLOSE, steps=8)
             # Up to clear the peg (its top is 13 cm above the table) before any sideways move.
-            yield from self.move_to(np.array([grasp[0], grasp[1], 0.21]), grasp_rot, speed=0.012)
-            if env.is_grasped(nut_geoms):
-                break
-            yield from self.set_gripper(OPEN, steps=6)
+            yield from self.grasp(grasp, grasp_rot, speed=0.01, close_steps=8, lift_z=0.21, lift_speed=0.012)
+
+        yield from self.grasp_until_held(grasp_nut, held=lambda: env.is_grasped(nut_geoms))
         in_hand = object_in_tcp(env, env.nut_id)
         peg_pos, peg_rot = env.body_pose(env.peg_id)
-        nut_rot = env.body_pose(env.nut_id)[1]
         # The hole is square: any quarter turn of the nut fits. Take one that keeps the hand on the robot's
         # side of the peg (beyond it the Panda is at the end of its reach) and turns the wrist least from its
         # start (a half turn runs joint 7 into its limit).
@@ -159,7 +152,8 @@ class ToolHangExpert(ScriptedExpert):
         env = self.env
         frame_geoms = env.geoms_of("frame_root")
         grip_local = env.model.geom_pos[env.frame_grip_geom]
-        for _ in range(3):
+
+        def grasp_frame():
             pos, rot = env.body_pose(env.frame_id)
             grip = pos + rot @ grip_local
             # The frame lies with its y axis down: fingers along its x axis (across the grip), the TCP's y
@@ -172,13 +166,10 @@ class ToolHangExpert(ScriptedExpert):
             grasp_rot = level_rot @ axis_angle_matrix([0.0, FRAME_GRASP_TILT, 0.0])
             grasp = grip + np.array([0.0, 0.0, 0.005]) + self.offset(0.5) * np.array([1.0, 1.0, 0.3])
             yield from self.move_to(grasp + [0, 0, 0.1], level_rot)
-            yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-            yield from self.move_to(grasp, grasp_rot, speed=0.01)
-            yield from self.set_gripper(CLOSE, steps=8)
-            yield from self.move_to(grasp + [0, 0, 0.1], grasp_rot, speed=0.012)
-            if env.is_grasped(frame_geoms):
-                break
-            yield from self.set_gripper(OPEN, steps=6)
+            yield from self.grasp(grasp, grasp_rot, speed=0.01, close_steps=8, lift=0.1, lift_speed=0.012)
+            return grasp_rot
+
+        grasp_rot = yield from self.grasp_until_held(grasp_frame, held=lambda: env.is_grasped(frame_geoms))
         yield from self.move_to(self.cmd_pos + [0, 0, 0.2], grasp_rot, speed=0.015)
 
         # Upright over the centre of the mount hole's opening, the hanging bar along the stand's -y.
@@ -221,20 +212,17 @@ class ToolHangExpert(ScriptedExpert):
     def _hang_tool(self):
         env = self.env
         tool_geoms = env.geoms_of("tool_root")
-        for _ in range(3):
+
+        def grasp_tool():
             pos, rot = env.body_pose(env.tool_id)
             # Fingers across the grip, the TCP's y against the tool's y: of the two such grasps, the one that
             # ends the roll with the hand pointing along the bar and the elbow comfortably bent.
             y_axis = -rot[:, 1]
             grasp_rot = top_down(np.arctan2(y_axis[0], -y_axis[1]))
             grasp = pos + np.array([0.0, 0.0, 0.003]) + self.offset(0.5) * np.array([1.0, 1.0, 0.3])
-            yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-            yield from self.move_to(grasp, grasp_rot, speed=0.01)
-            yield from self.set_gripper(CLOSE, steps=8)
-            yield from self.move_to(grasp + [0, 0, 0.1], grasp_rot, speed=0.012)
-            if env.is_grasped(tool_geoms):
-                break
-            yield from self.set_gripper(OPEN, steps=6)
+            yield from self.grasp(grasp, grasp_rot, speed=0.01, close_steps=8, lift=0.1, lift_speed=0.012)
+
+        yield from self.grasp_until_held(grasp_tool, held=lambda: env.is_grasped(tool_geoms))
 
         # The hanging bar: its free end (the hang site) and its direction from the frame's corner out to it.
         hang, frame_rot = env.site_pose(env.frame_hang_site)

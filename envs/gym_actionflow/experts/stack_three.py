@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from gym_actionflow.experts.base import (
-    CLOSE,
     OPEN,
     ScriptedExpert,
     object_in_tcp,
@@ -24,10 +23,7 @@ class StackThreeExpert(ScriptedExpert):
         yaw = symmetric_yaw(yaw_of(rot), np.pi / 2)
         grasp_rot = top_down(yaw)
         grasp = pos + np.array([0, 0, 0.002]) + self.offset() * np.array([1, 1, 0.3])
-        yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-        yield from self.move_to(grasp, grasp_rot, speed=0.012)
-        yield from self.set_gripper(CLOSE, steps=6)
-        yield from self.move_to(grasp + [0, 0, 0.08 + CUBE_HALF["cube_b"]], grasp_rot, speed=0.015)
+        yield from self.grasp(grasp, grasp_rot, lift=0.08 + CUBE_HALF["cube_b"])
 
     def place_on(self, held: str, base: str):
         env = self.env

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from gym_actionflow.base import ROBOT_BASE
-from gym_actionflow.experts.base import CLOSE, ScriptedExpert, object_in_tcp, tcp_for_object, top_down
+from gym_actionflow.experts.base import ScriptedExpert, object_in_tcp, tcp_for_object, top_down
 from gym_actionflow.geometry import yaw_of
 from gym_actionflow.tasks.threading import NEEDLE_TIP, RING_HEIGHT
 
@@ -51,10 +51,7 @@ class ThreadingExpert(ScriptedExpert):
         # Fingers close across the handle; the bar lies along the TCP's +x (flip = 0) or -x (flip = pi) axis.
         grasp_rot = top_down(yaw_of(rot) + flip)
         grasp = pos + np.array([0.0, 0.0, 0.002]) + self.offset() * np.array([1.0, 1.0, 0.3])
-        yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-        yield from self.move_to(grasp, grasp_rot, speed=0.012)
-        yield from self.set_gripper(CLOSE, steps=6)
-        yield from self.move_to([grasp[0], grasp[1], TRAVEL_HEIGHT], grasp_rot, speed=0.015)
+        yield from self.grasp(grasp, grasp_rot, lift_z=TRAVEL_HEIGHT)
 
     def thread(self, rot: np.ndarray):
         env = self.env

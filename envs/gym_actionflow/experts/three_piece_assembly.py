@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from gym_actionflow.experts.base import (
-    CLOSE,
     OPEN,
     ScriptedExpert,
     object_in_tcp,
@@ -47,11 +46,8 @@ class ThreePieceAssemblyExpert(ScriptedExpert):
         # top_down(yaw) closes along yaw + pi/2; pick the equivalent yaw nearest the home wrist (0).
         grasp_rot = top_down(symmetric_yaw(closing_yaw - np.pi / 2, np.pi))
         grasp = pos + np.array([0, 0, height - GRASP_DEPTH]) + self.offset() * np.array([1, 1, 0.3])
-        yield from self.move_to(grasp + [0, 0, 0.08], grasp_rot)
-        yield from self.move_to(grasp, grasp_rot, speed=0.012)
-        yield from self.set_gripper(CLOSE, steps=6)
-        yield from self.move_to([grasp[0], grasp[1], CARRY_Z[name] + height - GRASP_DEPTH], grasp_rot,
-                                speed=CARRY_SPEED)
+        carry_z = CARRY_Z[name] + height - GRASP_DEPTH
+        yield from self.grasp(grasp, grasp_rot, lift_z=carry_z, lift_speed=CARRY_SPEED)
 
     def insert(self, name: str, seat_pos: np.ndarray, seat_yaw: float, period: float, above: float):
         """Carry the held piece over its seat, align its yaw (modulo ``period``) with ``seat_yaw``, servo

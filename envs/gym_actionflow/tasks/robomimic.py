@@ -21,30 +21,16 @@ robosuite 1.5.2 pins ``mink==0.0.5`` (``numpy<2``), which LeRobot cannot share, 
 
 from __future__ import annotations
 
-import atexit
-import functools
 import logging
 from typing import Any, ClassVar
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
-from gym_actionflow.base import (
-    CONTROL_HZ,
-    MAX_FINGER,
-    MAX_JOINT_STEP,
-    _close_renderers,
-    parse_pose_action,
-    pose_action_space,
-    rate_limit,
-    subtree_geoms,
-    token_observation,
-    token_observation_space,
-)
-from gym_actionflow.geometry import rotation_angle, rotation_log
-from gym_actionflow.registry import OBS_MODES, check_choice
-from gym_actionflow.robot import PoseController, RobotRefs
+from gym_actionflow.geometry import rotation_log
+from gym_actionflow.registry import check_choice
+from gym_actionflow.robot import MAX_FINGER, PoseController, RobotRefs
+from gym_actionflow.shell import CONTROL_HZ, TokenEnv
 
 ROBOSUITE_VERSION = "1.5.2"
 SITE_TO_TCP = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -82,23 +68,22 @@ def import_robosuite():
     return robosuite
 
 
-class RobosuiteTaskEnv(gym.Env):
-    """One of robosuite's single-arm Panda tasks behind gym_actionflow's token observation and pose action."""
+class RobosuiteTaskEnv(TokenEnv):
+    """One of robosuite's single-arm Panda tasks behind gym_actionflow's token observation and pose action.
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}
+    It fills the shell's simulator hooks (:mod:`gym_actionflow.shell`) with robosuite: its environment built
+    once, its reset (layout and joint noise from our seed), its controller stepping, its poses read in our
+    frame; a task adds ``robosuite_env``, ``_cache_refs`` and ``_entity_poses`` (success is robosuite's)."""
+
     robosuite_env: ClassVar[str] = ""
     """robosuite's name of the environment (``suite.make``)."""
-    entity_names: ClassVar[tuple[str, ...]] = ()
-    scalar_names: ClassVar[tuple[str, ...]] = ()
-    variants: ClassVar[tuple[str, ...]] = ("D0",)
+    variants = ("D0",)
     """robosuite's own initial-state distribution, the only one."""
-    task_description: ClassVar[str] = ""
     workspace_low: ClassVar[np.ndarray] = np.array([-0.35, -0.45, 0.0])
     workspace_high: ClassVar[np.ndarray] = np.array([0.35, 0.45, 0.6])
     """Action targets are clipped to this box (m, our frame: table top at z = 0)."""
-    default_image_size: ClassVar[int] = 84
-    render_camera: ClassVar[str] = "agentview"
-    wrist_camera: ClassVar[str] = "robot0_eye_in_hand"
+    render_camera = "agentview"
+    wrist_camera = "robot0_eye_in_hand"
 
     def __init__(
         self,
@@ -111,33 +96,28 @@ class RobosuiteTaskEnv(gym.Env):
         controller: str = "ik",
         controller_kp: float | None = None,
     ) -> None:
-        variant = self.variants[0] if variant is None else variant
-        check_choice("variant", variant, self.variants, f" for {type(self).__name__}")
-        check_choice("obs_mode", obs_mode, OBS_MODES, " ('pixels' = state + wrist camera)")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode={render_mode!r}; only 'rgb_array' (or None) is supported")
         check_choice("controller", controller, CONTROLLERS)
         controller_kp = DEFAULT_KP[controller] if controller_kp is None else float(controller_kp)
         if not controller_kp > 0:
             raise ValueError(f"controller_kp={controller_kp}; expected a positive stiffness")
         self.controller_name = controller
-        self.variant, self.obs_mode, self.render_mode = variant, obs_mode, render_mode
-        self.terminate_on_success = terminate_on_success
-        self.image_size = int(self.default_image_size if image_size is None else image_size)
-        self.render_size = tuple(render_size)
+        self.controller_kp = controller_kp
+        super().__init__(variant, obs_mode, render_mode, terminate_on_success, image_size, render_size)
 
+    # ------------------------------------------------------------------ simulator hooks
+    def _initialize_simulation(self) -> None:
         suite = import_robosuite()
         from robosuite.controllers import load_composite_controller_config
 
         config = load_composite_controller_config(robot="Panda")
         arm = config["body_parts"]["right"]
-        if controller == "osc":
-            arm.update(input_type="absolute", input_ref_frame="world", kp=controller_kp)
+        if self.controller_name == "osc":
+            arm.update(input_type="absolute", input_ref_frame="world", kp=self.controller_kp)
         else:
             gripper = arm["gripper"]
             arm.clear()
             arm.update(
-                type="JOINT_POSITION", input_type="absolute", kp=controller_kp, damping_ratio=1.0,
+                type="JOINT_POSITION", input_type="absolute", kp=self.controller_kp, damping_ratio=1.0,
                 impedance_mode="fixed", kp_limits=[0, 2000], damping_ratio_limits=[0, 10], input_max=1,
                 input_min=-1, output_max=0.05, output_min=-0.05, qpos_limits=None, interpolation=None,
                 ramp_ratio=0.2, gripper=gripper,
@@ -190,41 +170,40 @@ class RobosuiteTaskEnv(gym.Env):
         self.ik = PoseController(self.model, self._arm, rest=rest)
         self._q_target = self.data.qpos[self._arm.qpos].copy()
         self._cache_refs()
-        self._renderers: dict[str, mujoco.Renderer] = {}
         # robosuite's models keep collision shapes in geom group 0 (drawn green), looks in group 1: as its own
         # renderer, draw only the visual groups.
-        self._visual_only = mujoco.MjvOption()
-        self._visual_only.geomgroup[0] = 0
-        self._exit_hook = None
+        self._scene_option = mujoco.MjvOption()
+        self._scene_option.geomgroup[0] = 0
         self._target_pos, self._target_rot = self.tcp_pose()
 
-        self.feature_dim = self.n_tokens + 1 + len(self.scalar_names)
-        pixels = (self.image_size, self.image_size, 3) if obs_mode == "pixels" else None
-        self.observation_space = token_observation_space(self.n_tokens, len(self.scalar_names), None, pixels)
-        self.action_space = pose_action_space(self.workspace_low, self.workspace_high)
+    def _reset_simulation(self) -> None:
+        # robosuite draws the layout and the arm's initial joint noise from its env's rng, which its placement
+        # samplers share: reseed that one generator in place from ours.
+        state = np.random.default_rng(self.np_random.integers(2**63)).bit_generator.state
+        self.rs.rng.bit_generator.state = state
+        self.rs.reset()
+        # robosuite's soft reset restores positions and velocities only: clear what else the last episode left
+        # in the simulator (the solver's warm start, the controls), or the same seed would not give the same
+        # rollout.
+        d = self.data
+        for field in (d.qacc_warmstart, d.ctrl, d.qfrc_applied, d.xfrc_applied):
+            field[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+        self._target_pos, self._target_rot = self.tcp_pose()
+        self._q_target = self.data.qpos[self._arm.qpos].copy()
+        # robosuite drops its objects from a little above their resting place: let them land before the
+        # first observation, the arm holding its start pose.
+        hold = np.concatenate([self._target_pos, self._target_rot[:, 0], self._target_rot[:, 1], [-1.0]])
+        for _ in range(SETTLE_STEPS):
+            self._command(hold)
 
-    # ------------------------------------------------------------------ task hooks
-    def _robosuite_kwargs(self) -> dict[str, Any]:
-        """Extra keywords of ``suite.make`` (default: none)."""
-        return {}
-
-    def _table_top(self) -> float:
-        return float(self.rs.table_offset[2])
-
-    def _cache_refs(self) -> None:
-        """Look up the ids the task needs (default: nothing)."""
-
-    def _entity_poses(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        raise NotImplementedError
-
-    # ------------------------------------------------------------------ helpers (the ManipulationEnv ones)
-    @property
-    def task(self) -> str:
-        return type(self).__name__.removesuffix("Env")
-
-    @property
-    def n_tokens(self) -> int:
-        return 1 + len(self.entity_names)
+    def _step_simulation(self, pos: np.ndarray, rot: np.ndarray, grip: float) -> None:
+        site_pos = pos + np.array([0.0, 0.0, self.table_top])
+        site_rot = rot @ SITE_TO_TCP.T
+        if self.controller_name == "osc":
+            self.rs.step(np.concatenate([site_pos, rotation_log(site_rot), [grip]]))
+            return
+        self.rs.step(np.concatenate([self._solve_joint_targets(self.ik, site_pos, site_rot), [grip]]))
 
     def _to_ours(self, pos: np.ndarray) -> np.ndarray:
         return pos - np.array([0.0, 0.0, self.table_top])
@@ -247,105 +226,25 @@ class RobosuiteTaskEnv(gym.Env):
         q = self.data.qpos[self._fingers]
         return float(np.clip(q[0] - q[1], 0.0, 2 * MAX_FINGER))
 
-    def geoms_of(self, body_name: str) -> set[int]:
-        """Ids of every geom in a body and its descendants."""
-        return subtree_geoms(self.model, body_name)
-
     def is_grasped(self, object_geoms: set[int]) -> bool:
         """robosuite's grasp check: both fingers' pads touch the object."""
         names = [self.model.geom(g).name for g in object_geoms]
         return bool(self.rs._check_grasp(gripper=self.rs.robots[0].gripper["right"], object_geoms=names))
 
-    def is_success(self) -> bool:
+    def _check_success(self) -> bool:
         """robosuite's own success check of the task (no side effects)."""
-        return bool(self.rs._check_success())
+        return self.rs._check_success()
 
-    def tracking_error(self) -> tuple[float, float]:
-        """(position m, rotation rad) between the commanded target and the TCP."""
-        pos, rot = self.tcp_pose()
-        return float(np.linalg.norm(pos - self._target_pos)), rotation_angle(rot, self._target_rot)
+    # ------------------------------------------------------------------ task hooks
+    def _robosuite_kwargs(self) -> dict[str, Any]:
+        """Extra keywords of ``suite.make`` (default: none)."""
+        return {}
 
-    # ------------------------------------------------------------------ gym API
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        # robosuite draws the layout and the arm's initial joint noise from its env's rng, which its placement
-        # samplers share: reseed that one generator in place from ours.
-        state = np.random.default_rng(self.np_random.integers(2**63)).bit_generator.state
-        self.rs.rng.bit_generator.state = state
-        self.rs.reset()
-        # robosuite's soft reset restores positions and velocities only: clear what else the last episode left
-        # in the simulator (the solver's warm start, the controls), or the same seed would not give the same
-        # rollout.
-        d = self.data
-        for field in (d.qacc_warmstart, d.ctrl, d.qfrc_applied, d.xfrc_applied):
-            field[:] = 0.0
-        mujoco.mj_forward(self.model, self.data)
-        self._target_pos, self._target_rot = self.tcp_pose()
-        self._q_target = self.data.qpos[self._arm.qpos].copy()
-        # robosuite drops its objects from a little above their resting place: let them land before the
-        # first observation, the arm holding its start pose.
-        hold = np.concatenate([self._target_pos, self._target_rot[:, 0], self._target_rot[:, 1], [-1.0]])
-        for _ in range(SETTLE_STEPS):
-            self._act(hold)
-        success = self.is_success()
-        return self._observation(), {"is_success": success}
+    def _table_top(self) -> float:
+        return float(self.rs.table_offset[2])
 
-    def step(self, action):
-        self._act(action)
-        success = self.is_success()
-        terminated = bool(success and self.terminate_on_success)
-        return self._observation(), float(success), terminated, False, {"is_success": success}
-
-    def _act(self, action) -> None:
-        pos, rot, grip = parse_pose_action(action, self.workspace_low, self.workspace_high)
-        pos, rot = rate_limit(self._target_pos, self._target_rot, pos, rot)
-        self._target_pos, self._target_rot = pos, rot
-        site_pos = pos + np.array([0.0, 0.0, self.table_top])
-        site_rot = rot @ SITE_TO_TCP.T
-        if self.controller_name == "osc":
-            self.rs.step(np.concatenate([site_pos, rotation_log(site_rot), [grip]]))
-            return
-        q = self.ik.solve(self._q_target, site_pos, site_rot)
-        # Joint velocity limit, as in the rest of the suite: an IK branch switch can never fling the arm.
-        self._q_target = self._q_target + np.clip(q - self._q_target, -MAX_JOINT_STEP, MAX_JOINT_STEP)
-        self.rs.step(np.concatenate([self._q_target, [grip]]))
-
-    def _observation(self) -> dict[str, Any]:
-        scalars = np.zeros((self.n_tokens, len(self.scalar_names)))
-        obs = token_observation(self.tcp_pose(), self._entity_poses(), self.gripper_opening(), scalars)
-        if self.obs_mode == "pixels":
-            size = self.image_size
-            obs["pixels"] = {"wrist": self._render_camera(self.wrist_camera, size, size)}
-        return obs
-
-    # ------------------------------------------------------------------ rendering
-    def _render_camera(self, camera: str, height: int, width: int) -> np.ndarray:
-        key = f"rgb:{height}x{width}"
-        renderer = self._renderers.get(key)
-        if renderer is None:
-            try:
-                renderer = mujoco.Renderer(self.model, height=height, width=width)
-            except mujoco.FatalError as err:
-                raise RuntimeError(
-                    f"offscreen rendering failed ({err}). Set MUJOCO_GL=egl (or osmesa) in the environment."
-                ) from err
-            self._renderers[key] = renderer
-            if self._exit_hook is None:
-                self._exit_hook = functools.partial(_close_renderers, self._renderers)
-                atexit.register(self._exit_hook)
-        renderer.update_scene(self.data, camera=camera, scene_option=self._visual_only)
-        return renderer.render().copy()
-
-    def render(self) -> np.ndarray | None:
-        if self.render_mode is None:
-            return None
-        return self._render_camera(self.render_camera, *self.render_size)
-
-    def close(self) -> None:
-        _close_renderers(self._renderers)
-        if self._exit_hook is not None:
-            atexit.unregister(self._exit_hook)
-            self._exit_hook = None
+    def _cache_refs(self) -> None:
+        """Look up the ids the task needs (default: nothing)."""
 
 
 class RobosuiteLiftEnv(RobosuiteTaskEnv):
