@@ -20,7 +20,7 @@ An env observation is a dict of arrays with the cameras nested under ``pixels``;
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -115,15 +115,53 @@ def token_shapes(n_tokens: int, feature_dim: int) -> dict[str, tuple[int, ...]]:
     }
 
 
-def dataset_features(shapes: Mapping[str, tuple[int, ...]]) -> dict[str, dict]:
+def _token_names(
+    shapes: Mapping[str, tuple[int, ...]], token_names: Sequence[str], scalar_names: Sequence[str]
+) -> dict[str, list | dict]:
+    """LeRobot ``names`` of the token keys: a 2-D key names each axis (``{"tokens": [...], "pose": [...]}``,
+    LeRobot's ``{axis: [names]}`` form), the flat ``environment_state`` each element (``cube_a.x``...), as
+    a 1-D key's list of names, which LeRobot's viewers use to label the series."""
+    tokens = list(token_names)
+    columns = [f"is_{name}" for name in tokens] + ["gripper_opening", *scalar_names]
+    expected = {
+        "token_poses": (len(tokens), POSE_DIM),
+        "token_features": (len(tokens), len(columns)),
+        "environment_state": (POSE_DIM * (len(tokens) - 1),),
+    }
+    for env_key, shape in expected.items():
+        if env_key in shapes and tuple(shapes[env_key]) != shape:
+            raise ValueError(
+                f"{env_key} has shape {tuple(shapes[env_key])} but token_names {tokens} and scalar_names "
+                f"{list(scalar_names)} describe {shape}; expected one name per token (token 0 = EEF) and the "
+                "feature columns one-hot id + gripper opening + task scalars"
+            )
+    return {
+        "token_poses": {"tokens": tokens, "pose": list(POSE_NAMES)},
+        "token_features": {"tokens": tokens, "features": columns},
+        "environment_state": [f"{name}.{p}" for name in tokens[1:] for p in POSE_NAMES],
+    }
+
+
+def dataset_features(
+    shapes: Mapping[str, tuple[int, ...]],
+    token_names: Sequence[str] | None = None,
+    scalar_names: Sequence[str] = (),
+) -> dict[str, dict]:
     """LeRobotDataset feature specs (``LeRobotDataset.create(features=...)``) of observations with these
-    shapes, plus the action. Cameras are stored as video."""
+    shapes, plus the action. Cameras are stored as video.
+
+    ``token_names`` (the env's ``token_names``: ``eef``, then its entities) and ``scalar_names`` (its task
+    scalars) name the rows and columns of the token keys, so a dataset says which row is which object;
+    without them those keys have ``names: None``."""
+    names = dict(_NAMES)
+    if token_names is not None:
+        names |= _token_names(shapes, token_names, scalar_names)
     features = {}
     for env_key, shape in shapes.items():
         if _is_camera(env_key):
             spec = {"dtype": "video", "shape": tuple(shape), "names": ["height", "width", "channels"]}
         else:
-            spec = {"dtype": "float32", "shape": tuple(shape), "names": _NAMES.get(env_key)}
+            spec = {"dtype": "float32", "shape": tuple(shape), "names": names.get(env_key)}
         features[policy_key(env_key)] = spec
     features[ACTION] = {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)}
     return features

@@ -66,3 +66,24 @@ def test_policy_batch_is_what_lerobot_eval_gives_the_policy(mug):
 def test_an_unknown_observation_key_is_a_clear_error():
     with pytest.raises(KeyError, match="'tactile' is not an observation key of the token schema"):
         schema.dataset_features({"tactile": (4,)})
+
+
+def test_token_names_name_the_rows_and_columns_of_the_token_keys():
+    """Guards against ``names: None`` on the token keys (a dataset that does not say which row is which
+    object) and against names that do not match the shapes they name."""
+    env = gym.make("gym_actionflow/Coffee-v0")
+    unwrapped = env.unwrapped
+    shapes = schema.observation_shapes(env.observation_space)
+    features = schema.dataset_features(shapes, unwrapped.token_names, unwrapped.scalar_names)
+    env.close()
+    tokens = ["eef", "pod", "machine", "lid"]
+    assert unwrapped.token_names == tuple(tokens)
+    assert features["observation.token_poses"]["names"] == {"tokens": tokens, "pose": list(schema.POSE_NAMES)}
+    columns = features["observation.token_features"]["names"]["features"]
+    assert columns == ["is_eef", "is_pod", "is_machine", "is_lid", "gripper_opening", "lid_angle"]
+    assert len(columns) == shapes["token_features"][1]
+    env_state = features["observation.environment_state"]["names"]
+    assert len(env_state) == shapes["environment_state"][0] and env_state[9] == "machine.x"
+    assert schema.dataset_features(shapes)["observation.token_poses"]["names"] is None  # names are optional
+    with pytest.raises(ValueError, match=r"token_poses has shape \(4, 9\) but token_names \['eef', 'pod'\]"):
+        schema.dataset_features(shapes, ["eef", "pod"], unwrapped.scalar_names)

@@ -5,6 +5,7 @@
     actionflow-record datasets/stack_three_d0_50.toml --push-to-hub you/stack_three_d0_50
 
     actionflow-record datasets/stack_d0_200.toml --workers 3                  # simulate in 3 processes
+    actionflow-record push ~/.cache/huggingface/lerobot/actionflow/stack_d0_200 --to you/stack_d0_200
 
 Only successful expert episodes are kept; failures are counted and reported. Seeds are tried in order from
 ``--seed``, so a dataset is reproducible from its command, with any number of --workers. Every kept episode is
@@ -13,6 +14,11 @@ and the dataset is finalized every 50 episodes (every tenth of it beyond 500) an
 Ctrl-C, a crash or a kill keeps all of them (whatever a kill interrupts while it is written is undone), and
 running the same command again resumes where the recording stopped, replaying the journal instead of
 simulating those episodes again.
+
+Every flag and recipe field is checked before anything is written. The folder holds its dataset card
+(README.md) from the moment the recording stops; `push ROOT --to REPO_ID` uploads the folder as it is, card
+included, to a Hub dataset repo (also what --push-to-hub does after recording). The Hub repo is where a copy
+goes, not part of the recording: pushing changes nothing local.
 """
 
 from __future__ import annotations
@@ -25,17 +31,24 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from gym_actionflow import find_task
-
-from lerobot_actionflow.tools.record.hub import check_hub_credentials, push
-from lerobot_actionflow.tools.record.recipe import Recipe, load_recipe
+from lerobot_actionflow.tools.record.hub import check_hub_credentials, check_pushable, push
+from lerobot_actionflow.tools.record.recipe import Recipe, check_fields, load_recipe, recipe_label
 from lerobot_actionflow.tools.record.recorder import record
+
+PROG = "actionflow-record"
+FLAGS = {
+    "task": "--task", "variant": "--variant", "episodes": "--episodes", "seed": "--seed", "noise": "--noise",
+    "obs_mode": "--obs-mode", "repo_id": "--repo-id",
+}  # fmt: skip
+"""Recipe field -> the flag that sets it, to name the flag in an error about its value."""
+INPUT_ERRORS = (ValueError, FileNotFoundError, FileExistsError, RuntimeError)
+"""What a bad input raises: a one-line error and exit code 2, no traceback."""
 
 
 def _parse_env_kwarg(text: str) -> tuple[str, Any]:
     key, sep, value = text.partition("=")
     if not sep or not key:
-        raise argparse.ArgumentTypeError(f"--env-kwarg {text!r}: expected KEY=VALUE")
+        raise argparse.ArgumentTypeError(f"got {text!r}; expected KEY=VALUE")
     try:
         return key, json.loads(value)
     except json.JSONDecodeError:
@@ -54,18 +67,31 @@ def _workers(text: str) -> int:
     return workers
 
 
+def _repo_id(text: str) -> str:
+    from huggingface_hub.utils import validate_repo_id
+
+    try:
+        validate_repo_id(text)
+    except Exception:  # HFValidationError
+        raise argparse.ArgumentTypeError(
+            f"got {text!r}; expected a Hub repo id such as you/stack_d0_200 (letters, digits, '-', '_', '.')"
+        ) from None
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="actionflow-record", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"`{PROG} push -h` tells how to upload a recorded dataset.",
+    )  # fmt: skip
     parser.add_argument("recipe", nargs="?", type=Path, help="a recipe file (datasets/*.toml)")
     parser.add_argument("--task", help="task name, e.g. StackThree (see `python -m gym_actionflow -h`)")
     parser.add_argument(
         "--variant", help="D0 / D1 / D2, or train / test / scene_moved for MugHanging (default: the first)"
     )
-    parser.add_argument("--episodes", type=int, help="successful episodes to keep")
-    parser.add_argument("--seed", type=int, help="first seed (default 0)")
-    parser.add_argument("--noise", type=float, help="expert noise (default 1)")
+    parser.add_argument("--episodes", type=int, help="successful episodes to keep (>= 1)")
+    parser.add_argument("--seed", type=int, help="first seed (>= 0, default 0)")
+    parser.add_argument("--noise", type=float, help="expert noise (finite, >= 0; default 1)")
     parser.add_argument("--obs-mode", choices=("state", "pixels"), help="pixels adds the wrist camera")
     parser.add_argument(
         "--env-kwarg", action="append", type=_parse_env_kwarg, default=[], metavar="KEY=VALUE",
@@ -73,7 +99,11 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     parser.add_argument("--repo-id", help="dataset repo id (default: actionflow/<task>_<variant>_<episodes>)")
     parser.add_argument("--root", type=Path, help="dataset directory (default: $HF_LEROBOT_HOME/<repo id>)")
-    parser.add_argument("--push-to-hub", metavar="REPO_ID", help="upload to the Hub with a dataset card")
+    parser.add_argument(
+        "--push-to-hub", metavar="REPO_ID", type=_repo_id,
+        help=f"then upload the folder to this Hub dataset repo, as `{PROG} push ROOT --to REPO_ID` does (not "
+        "part of the recording: the same folder can be pushed again, or elsewhere)",
+    )  # fmt: skip
     parser.add_argument("--private", action="store_true", help="with --push-to-hub: a private repository")
     parser.add_argument(
         "--workers", type=_workers, default=1, metavar="N",
@@ -85,34 +115,76 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def build_push_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=f"{PROG} push",
+        description="Upload a recorded dataset folder as it is, with its card (README.md), to a Hugging "
+        "Face Hub dataset repo. Nothing local changes (the dataset's own repo id included), so the same "
+        "folder can be pushed again or to another repo. Needs `hf auth login` or HF_TOKEN.",
+    )  # fmt: skip
+    parser.add_argument("root", type=Path, help="the dataset folder (its --root, or $HF_LEROBOT_HOME/<id>)")
+    parser.add_argument("--to", required=True, type=_repo_id, metavar="REPO_ID", help="Hub repo, e.g. you/x")
+    parser.add_argument("--private", action="store_true", help="create the repository private")
+    return parser
+
+
 def recipe_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Recipe:
-    given = {
-        "task": args.task, "variant": args.variant, "episodes": args.episodes, "seed": args.seed,
-        "noise": args.noise, "obs_mode": args.obs_mode, "repo_id": args.repo_id,
-    }  # fmt: skip
-    given = {k: v for k, v in given.items() if v is not None}
+    """The recipe of a command line: the recipe file's fields, overridden by the flags given. Every value is
+    checked here, an error naming the flag it came from or the field and the file."""
+    given = {key: getattr(args, key) for key in FLAGS if getattr(args, key) is not None}
+    labels = {key: FLAGS[key] for key in given}
     if args.env_kwarg:
         given["env_kwargs"] = dict(args.env_kwarg)
+        labels |= {f"env_kwargs.{key}": f"--env-kwarg {key}" for key in given["env_kwargs"]}
     if args.recipe is not None:
         base = asdict(load_recipe(args.recipe))
-        recipe = Recipe(**(base | given | {"env_kwargs": base["env_kwargs"] | given.get("env_kwargs", {})}))
+        values = base | given | {"env_kwargs": base["env_kwargs"] | given.get("env_kwargs", {})}
+        source = recipe_label(args.recipe)
     else:
         if "task" not in given or "episodes" not in given:
             parser.error("give a recipe file, or at least --task and --episodes")
-        task = find_task(given["task"])
-        given.setdefault("variant", task.variants[0])
+        values, source = dict(given), str
+    check_fields(values, lambda key: labels.get(key) or source(key))
+    if args.recipe is None:  # the defaults of the command line
+        from gym_actionflow import find_task
+
+        task = find_task(values["task"])
+        values.setdefault("variant", task.variants[0])
         slug = "".join("_" + c.lower() if c.isupper() else c for c in task.name).lstrip("_")
-        given.setdefault("repo_id", f"actionflow/{slug}_{given['variant'].lower()}_{given['episodes']}")
-        recipe = Recipe(**given)
-    if args.push_to_hub:
-        if args.repo_id and args.repo_id != args.push_to_hub:
-            parser.error(f"--repo-id {args.repo_id} and --push-to-hub {args.push_to_hub} differ; give one")
-        recipe.repo_id = args.push_to_hub
-    find_task(recipe.task)
-    return recipe
+        values.setdefault("repo_id", f"actionflow/{slug}_{values['variant'].lower()}_{values['episodes']}")
+    return Recipe(**values)
+
+
+def _upload(root: Path, repo_id: str, private: bool) -> int:
+    """Push, reporting a failed upload (network, Hub refusal) in one line: exit code 1."""
+    import httpx
+    from huggingface_hub.errors import HfHubHTTPError
+
+    try:
+        url = push(root, repo_id, private=private)
+    except (HfHubHTTPError, httpx.HTTPError, OSError) as err:
+        print(f"{PROG}: error: uploading {root} to {repo_id} failed: {err}", file=sys.stderr)
+        return 1
+    print(f"pushed {root} to {url}")
+    return 0
+
+
+def push_main(argv: list[str]) -> int:
+    """``actionflow-record push ROOT --to REPO_ID [--private]``."""
+    args = build_push_parser().parse_args(argv)
+    try:
+        check_pushable(args.root)
+        check_hub_credentials(f"{PROG} push")
+    except INPUT_ERRORS as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    return _upload(args.root, args.to, args.private)
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["push"]:
+        return push_main(argv[1:])
     # A process started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C and
     # `kill -INT` must still stop a recording cleanly.
     signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -126,8 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("\nInterrupted: every finished episode is saved; run the same command again to resume.")
         return 130
-    except (ValueError, FileNotFoundError, FileExistsError, RuntimeError) as err:
-        print(f"actionflow-record: error: {err}", file=sys.stderr)
+    except INPUT_ERRORS as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
         return 2
     log = result.log
     rate = f"{log.success_rate:.1%}" if log.kept_seeds or log.failed_seeds else "n/a"
@@ -142,8 +214,7 @@ def main(argv: list[str] | None = None) -> int:
             f"seeds tried: {rate}"
         )
     if args.push_to_hub:
-        push(recipe, result.root, private=args.private)
-        print(f"pushed to https://huggingface.co/datasets/{recipe.repo_id}")
+        return _upload(result.root, args.push_to_hub, args.private)
     return 0
 
 

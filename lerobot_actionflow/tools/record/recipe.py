@@ -1,13 +1,26 @@
 """What to record: a :class:`Recipe` (task, variant, episodes, seed, noise, ...), from a TOML file or the
-command line, and the command line that reproduces it."""
+command line, and the command line that reproduces it.
+
+Every field is checked here (:func:`check_fields`) before anything is recorded: a recording that starts from a
+bad value would create its folder and log that value as part of the recording's identity, and the corrected
+rerun would then be refused as "a different recording". An error names where the value came from (a flag, a
+recipe file's field, or the ``Recipe`` field), the value seen and what was expected.
+"""
 
 from __future__ import annotations
 
+import inspect
+import math
 import shlex
 import tomllib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
+
+Label = Callable[[str], str]
+"""Where a field's value came from, for error messages: ``noise -> "--noise"`` or ``"noise in x.toml"``; an
+env keyword is asked for as ``env_kwargs.<key>``."""
 
 
 @dataclass
@@ -35,11 +48,8 @@ class Recipe:
     REQUIRED = ("task", "variant", "episodes", "repo_id")
 
     def __post_init__(self) -> None:
-        if int(self.episodes) < 1:
-            raise ValueError(f"episodes={self.episodes}; expected an integer >= 1")
-        if self.noise < 0:
-            raise ValueError(f"noise={self.noise}; expected >= 0")
-        self.episodes, self.seed, self.noise = int(self.episodes), int(self.seed), float(self.noise)
+        check_fields({f.name: getattr(self, f.name) for f in fields(self)})
+        self.noise = float(self.noise)
 
     def command(self) -> str:
         """The ``actionflow-record`` command line that reproduces this dataset."""
@@ -52,8 +62,100 @@ class Recipe:
         return shlex.join([*args, "--repo-id", self.repo_id])
 
 
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)  # True is an int to Python, not a count
+
+
+def env_keywords(env_class: type) -> set[str] | None:
+    """The keyword arguments ``env_class(...)`` accepts, following ``**kwargs`` passed up to the base
+    classes; None when the class does not say (an ``__init__`` that takes ``**kwargs`` for itself)."""
+    names: set[str] = set()
+    for cls in env_class.__mro__:
+        if "__init__" not in vars(cls) or cls is object:
+            continue
+        params = inspect.signature(vars(cls)["__init__"]).parameters.values()
+        names |= {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            return names - {"self"}
+    return None
+
+
+def _check_env_kwargs(task, env_kwargs: object, label: Label) -> None:
+    from gym_actionflow.registry import load
+
+    if not isinstance(env_kwargs, Mapping):
+        raise ValueError(
+            f"{label('env_kwargs')}: got {env_kwargs!r}; expected a table of gym.make keywords "
+            '(e.g. [env_kwargs] hanger_obs = "point_cloud")'
+        )
+    accepted = env_keywords(load(task.entry_point)) if env_kwargs else None
+    for key in env_kwargs:
+        where = label(f"env_kwargs.{key}")
+        if key in ("variant", "obs_mode"):
+            flag = "--" + key.replace("_", "-")
+            raise ValueError(f"{where}: {key} is a field of its own; give it as {key} ({flag})")
+        if accepted is not None and key not in accepted:
+            options = ", ".join(sorted(accepted - {"variant", "obs_mode"}))
+            raise ValueError(
+                f"{where}: {task.env_id} takes no keyword {key!r}; expected one of its keywords: {options}"
+            )
+
+
+def check_fields(values: Mapping[str, Any], label: Label = str) -> None:
+    """Check a recipe's fields (those present in ``values``): types strict (``True`` is not a count, 2.7
+    is not an integer), numbers finite and in range, the task known, the variant and obs mode one of the
+    task's, the env keywords ones the task's env takes. A ValueError names ``label(field)``, the value seen
+    and what was expected."""
+    from gym_actionflow import find_task
+    from gym_actionflow.registry import OBS_MODES
+    from huggingface_hub.utils import validate_repo_id
+
+    def fail(key: str, expected: str) -> None:
+        raise ValueError(f"{label(key)}: got {values[key]!r}; expected {expected}")
+
+    task = None
+    if "task" in values:
+        if not isinstance(values["task"], str):
+            fail("task", "a task name such as 'StackThree'")
+        try:
+            task = find_task(values["task"])
+        except ValueError as err:
+            raise ValueError(f"{label('task')}: {err}") from None
+    if "variant" in values:
+        choices = task.variants if task is not None else ()
+        if not isinstance(values["variant"], str) or (task is not None and values["variant"] not in choices):
+            fail("variant", f"one of {choices} for {task.name}" if task else "a variant name such as 'D0'")
+    for key, low in (("episodes", 1), ("seed", 0)):
+        if key in values and (not _is_int(values[key]) or values[key] < low):
+            fail(key, f"an integer >= {low}")
+    if "noise" in values:
+        noise = values["noise"]
+        if not (_is_int(noise) or isinstance(noise, float)) or not math.isfinite(noise) or noise < 0:
+            fail("noise", "a finite number >= 0 (0: deterministic expert, 1: the standard noise)")
+    if "obs_mode" in values and values["obs_mode"] not in OBS_MODES:
+        fail("obs_mode", f"one of {OBS_MODES} ('pixels' adds the wrist camera)")
+    if "repo_id" in values:
+        try:
+            validate_repo_id(values["repo_id"])
+        except Exception:  # huggingface_hub's HFValidationError, or a TypeError for a non-string
+            fail("repo_id", "a Hub repo id such as 'you/stack_d0_200' (letters, digits, '-', '_', '.')")
+    if "env_kwargs" in values and task is not None:
+        _check_env_kwargs(task, values["env_kwargs"], label)
+
+
+TRAINING_TABLES = ("train", "eval")
+"""Tables of a dataset recipe that say how to train and evaluate on it (``lerobot_actionflow.recipes``), not
+what to record."""
+
+
 def load_recipe(path: str | Path) -> Recipe:
-    """Read a recipe file; a missing or unknown field is an error naming it (nothing is recorded)."""
+    """Read a recipe file's record fields; a missing, unknown or bad field is an error naming it and the
+    file (nothing is recorded). Its ``[train]`` / ``[eval]`` tables are :func:`read_recipe_file`'s."""
+    return read_recipe_file(path)[0]
+
+
+def read_recipe_file(path: str | Path) -> tuple[Recipe, dict[str, Any]]:
+    """A recipe file's record fields, checked, and its ``[train]`` / ``[eval]`` tables as written."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"recipe {path} does not exist")
@@ -62,6 +164,7 @@ def load_recipe(path: str | Path) -> Recipe:
             data = tomllib.load(f)
         except tomllib.TOMLDecodeError as err:
             raise ValueError(f"recipe {path} is not valid TOML: {err}") from err
+    tables = {k: data.pop(k) for k in TRAINING_TABLES if k in data}
     known = {f.name for f in fields(Recipe)}
     missing = [k for k in Recipe.REQUIRED if k not in data]
     if missing:
@@ -71,5 +174,15 @@ def load_recipe(path: str | Path) -> Recipe:
         )
     unknown = sorted(set(data) - known)
     if unknown:
-        raise ValueError(f"recipe {path} has unknown field(s) {unknown}; expected fields in {sorted(known)}")
-    return Recipe(**data)
+        raise ValueError(
+            f"recipe {path} has unknown field(s) {unknown}; expected fields in {sorted(known)} and the "
+            f"tables {list(TRAINING_TABLES)}"
+        )
+    check_fields(data, recipe_label(path))
+    return Recipe(**data), tables
+
+
+def recipe_label(path: str | Path) -> Label:
+    """Labels of a recipe file's fields: ``noise in datasets/x.toml``, ``env_kwargs.foo in
+    datasets/x.toml``."""
+    return lambda key: f"{key} in {path}"

@@ -11,13 +11,16 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
+import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from lerobot_actionflow import schema
 from lerobot_actionflow.tools.record import journal
+from lerobot_actionflow.tools.record.card import write_card
 from lerobot_actionflow.tools.record.durability import (
     commit,
     deferred_interrupts,
@@ -72,6 +75,35 @@ def _restore(root: Path, log: RecordingLog) -> list[int]:
         )
     journal.discard(root, journaled - set(replay))  # already finalized, or journaled but never logged
     return replay
+
+
+def _features(env) -> dict[str, dict]:
+    """The dataset's features: the env's observation keys through the schema, the token rows named by the
+    env's ``token_names`` (and the feature columns by its ``scalar_names``) where it has them."""
+    unwrapped = env.unwrapped
+    return schema.dataset_features(
+        schema.observation_shapes(env.observation_space),
+        token_names=getattr(unwrapped, "token_names", None),
+        scalar_names=getattr(unwrapped, "scalar_names", ()),
+    )
+
+
+def check_root(root: Path) -> None:
+    """Fail before anything is written if the dataset folder could not be created at ``root``: its nearest
+    existing folder must let us create a folder in it (tried, and removed at once: permission bits do not
+    tell for root, read-only mounts or /proc)."""
+    advice = "choose a --root in a folder you can write to (default: $HF_LEROBOT_HOME/<repo id>)"
+    try:
+        existing = root
+        while not existing.exists():
+            existing = existing.parent
+        if not existing.is_dir():
+            raise ValueError(f"--root {root}: {existing} is a file, not a folder; {advice}")
+        os.rmdir(tempfile.mkdtemp(prefix=".actionflow_probe_", dir=existing))
+    except OSError as err:
+        raise ValueError(
+            f"--root {root}: cannot create the dataset folder there ({err.strerror or err}); {advice}"
+        ) from None
 
 
 def _open_dataset(recipe: Recipe, root: Path, features: dict):
@@ -202,8 +234,13 @@ def record(
     task = find_task(recipe.task)
     task.kwargs(recipe.variant, recipe.obs_mode)  # a bad variant or obs mode fails before anything is written
     root = Path(root) if root is not None else HF_LEROBOT_HOME / recipe.repo_id
-    env = make_env(recipe)
-    features = schema.dataset_features(schema.observation_shapes(env.observation_space))
+    env = make_env(recipe)  # an env keyword it does not take, or a bad value, fails here: nothing written yet
+    features = _features(env)
+    try:
+        check_root(root)
+    except Exception:
+        env.close()
+        raise
     if workers > 1:
         env.close()  # the workers simulate, each on its own env
         env = None
@@ -262,6 +299,7 @@ def record(
         if not half_written:
             with deferred_interrupts():
                 dataset.checkpoint(reopen=False)
+                write_card(root)  # the folder describes itself, pushed or not
         if env is not None:
             env.close()
         signal.signal(signal.SIGTERM, previous_term)

@@ -54,7 +54,12 @@ def make_env(recipe: Recipe):
     from gym_actionflow import find_task
 
     task = find_task(recipe.task)
-    return gym.make(task.env_id, **task.kwargs(recipe.variant, recipe.obs_mode), **recipe.env_kwargs)
+    try:
+        return gym.make(task.env_id, **task.kwargs(recipe.variant, recipe.obs_mode), **recipe.env_kwargs)
+    except TypeError as err:  # a keyword the env does not take, past the recipe's check of its signature
+        if not recipe.env_kwargs:
+            raise
+        raise ValueError(f"env_kwargs {recipe.env_kwargs}: not accepted by {task.env_id}: {err}") from None
 
 
 def simulate(env, recipe: Recipe, seed: int) -> Episode:
