@@ -34,10 +34,10 @@ test: lint
 	$(PY) -m pytest -q
 
 bench: $(VENV)/.installed
-	$(PY) eval/bench_latency.py
+	$(PY) -m eval.bench.latency
 
 bench-envs: $(VENV)/.installed
-	$(PY) eval/bench_envs.py
+	$(PY) -m eval.bench.envs
 
 clean:
 	rm -rf $(VENV) outputs

@@ -1,10 +1,8 @@
-"""eval/bench_delay.py: the delayed-inference runner's exact action sequence, the jerk metric and the CLI."""
+"""eval/bench/delay.py: the delayed-inference runner's exact action sequence, the jerk metric and the CLI."""
 
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,13 +10,11 @@ import synthetic as syn
 import torch
 from helpers import make_config
 
+from eval.bench import delay as bench_delay
+from eval.bench.delay import DelayedPolicyRunner, parse_delays, reported_elapsed, rms_jerk
 from lerobot_actionflow import ActionFlowPolicy, schema
 from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.modeling_actionflow import smooth_action
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
-import bench_delay  # noqa: E402
-from bench_delay import DelayedPolicyRunner, parse_delays, reported_elapsed, rms_jerk  # noqa: E402
 
 TINY = {"dim": 32, "num_heads": 4, "ipa_layers": 1, "transformer_layers": 1}
 HORIZON, N_ACTION_STEPS = 8, 4
@@ -162,7 +158,8 @@ def test_cli_writes_the_table_for_a_saved_checkpoint(tmp_path):
     args = "--task Stack --variant D0 --episodes 1 --delay-ms 100 measured".split()
     bench_delay.main(["--checkpoint", str(ckpt), *args, "--out", str(tmp_path)])
     text = (tmp_path / "delay_Stack.md").read_text()
-    assert f"Command: `python eval/bench_delay.py --checkpoint {ckpt}" in text
+    assert f"Command: `python -m eval.bench.delay --checkpoint {ckpt}" in text
+    assert "Provenance: commit" in text
     rows = [
         line for line in text.splitlines() if line.startswith("| 100 ms") or line.startswith("| measured")
     ]

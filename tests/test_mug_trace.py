@@ -1,16 +1,12 @@
-"""eval/mug_trace.py reads the handle's opening in the hanger frame: the expert lines it up where its script
-puts the insertion start."""
-
-import sys
-from pathlib import Path
+"""eval/diagnostics/mug_trace.py reads the handle's opening in the hanger frame: the expert lines it up where
+its script puts the insertion start."""
 
 import gymnasium as gym
 import numpy as np
 from gym_actionflow.tasks.mug_hanging import PEG_DIRECTION, PEG_TIP
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
-import mug_trace  # noqa: E402
-from mug_trace import APPROACH_START  # noqa: E402
+from eval.diagnostics import mug_trace
+from eval.diagnostics.mug_trace import APPROACH_START
 
 
 def test_the_expert_lines_the_handle_up_at_its_insertion_start():

@@ -1,39 +1,44 @@
-"""The paper benchmark harness (eval/paper.py): one tiny cell of each experiment through the real
-actionflow-record, lerobot-train and lerobot-eval, the JSON, tables and plots it writes, resuming, and the
-rule that no evaluated layout was recorded."""
+"""The paper benchmark harness (``python -m eval.paper``): one tiny cell of each experiment through the real
+actionflow-record, lerobot-train and lerobot-eval, the JSON, tables and plots it writes, resuming, the
+provenance of a cell, and the rule that no evaluated layout was recorded."""
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+from eval.paper import run as paper_run
+from eval.paper.__main__ import main as harness
+from eval.paper.commands import EVAL_SEED, check_disjoint, check_plan, eval_seeds
+from eval.paper.plan import EXPERIMENTS, Dataset, Paths, build
+from eval.paper.profiles import PROFILES, SMOKE
+from eval.provenance import PACKAGES
 
-import paper  # noqa: E402
-import paper_run  # noqa: E402
-from paper_commands import EVAL_SEED, check_disjoint, check_plan, eval_seeds  # noqa: E402
-from paper_plan import EXPERIMENTS, Dataset, Paths, build  # noqa: E402
-from paper_profiles import PROFILES, SMOKE  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory) -> tuple[Paths, dict[str, str]]:
-    """The smoke profile's three experiments, run once into a temporary work and results folder."""
+    """The smoke profile's three experiments, run once from a temporary folder into its ``work`` and
+    ``results`` (given as relative paths, as a user in the repository gives ``outputs/...``)."""
     root = tmp_path_factory.mktemp("paper")
     paths = Paths(root / "work", root / "results")
     mp = pytest.MonkeyPatch()
+    mp.chdir(root)
     mp.setenv("HF_LEROBOT_HOME", str(root / "hf_lerobot"))
     mp.setenv("OMP_NUM_THREADS", "1")
+    # The replay baseline runs as `python -m eval.paper.replay`, which a user runs from the repository root.
+    mp.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
     logs = {}
     try:
         for experiment in EXPERIMENTS:
-            argv = [experiment, "--profile", "smoke", "--work-dir", str(paths.work), "--results-dir",
-                    str(paths.results)]  # fmt: skip
-            paper.main(argv)
+            argv = [experiment, "--profile", "smoke", "--work-dir", "work", "--results-dir", "results"]
+            harness(argv)
             logs[experiment] = " ".join(argv)
     finally:
         mp.undo()
@@ -52,7 +57,7 @@ def test_a_tiny_cell_of_each_experiment_writes_json_table_and_plot(smoke, experi
         assert cell["harness_command"].endswith(argv[experiment])
         assert "actionflow-record" in cell["commands"]["record"]
         if cell["model"].startswith("replay"):
-            assert "paper_replay.py" in cell["commands"]["replay"]
+            assert cell["commands"]["replay"].startswith("python -m eval.paper.replay --root work/data/")
             continue
         assert "lerobot-train --policy.type=actionflow" in cell["commands"]["train"]
         assert ".partial" not in cell["commands"]["train"]  # the command a user reruns: the final folder
@@ -61,7 +66,9 @@ def test_a_tiny_cell_of_each_experiment_writes_json_table_and_plot(smoke, experi
         )
         assert cell["eval_seeds"][0] > cell["record_seeds"][1]
     table = (paths.results / f"smoke_{experiment}.md").read_text()
-    assert "python eval/paper.py report --profile smoke" in table and "| model |" in table
+    assert "python -m eval.paper report --profile smoke --results-dir results" in table
+    assert "| model |" in table
+    assert "Commits of the cells: `" in table and "before provenance" not in table
     assert all(c["group"] in table for c in cells)
     png = paths.results / f"smoke_{experiment}.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
@@ -77,10 +84,29 @@ def test_a_tiny_cell_of_each_experiment_writes_json_table_and_plot(smoke, experi
         assert "replay 1.5 mm off" in table
 
 
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_a_cell_records_its_provenance_and_no_absolute_path(smoke, experiment):
+    """A committed cell must say which code, packages and machine made it, and hold no path of the machine
+    that ran it (the interpreter's folder, the repository, the working folder) that a reader cannot paste."""
+    paths, _ = smoke
+    for file in paths.cells("smoke", experiment).glob("*.json"):
+        cell = json.loads(file.read_text())
+        info = cell["provenance"]
+        assert len(info["commit"]) == 40 and isinstance(info["dirty"], bool)
+        assert set(info["versions"]) == set(PACKAGES) and info["versions"]["torch"]
+        assert info["machine"]["cpu"] and info["machine"]["cores"] >= 1 and "gpu" in info["machine"]
+        text = file.read_text()
+        for machine_path in (str(REPO), str(Path(sys.executable).parent), str(paths.work.parent)):
+            assert machine_path not in text, (file.name, machine_path)
+        for command in cell["commands"].values():
+            assert not command.startswith("/"), command
+            assert command.split()[0] in ("actionflow-record", "lerobot-train", "lerobot-eval", "python")
+
+
 def test_the_wall_time_table_counts_a_shared_training_once_and_every_evaluation():
     """Three cells evaluating one training at three K: one training, three evaluations; a dataset shared
     by all of them is counted once in the total."""
-    from paper_report import timing_section
+    from eval.paper.report import timing_section
 
     def cell(k: int, train: str, eval_s: float) -> dict:
         return {"group": "Coffee D0", "model": "A.1", "key": f"k{k}",
@@ -102,7 +128,7 @@ def test_superseded_cells_are_listed_apart_and_never_pooled_with_todays(smoke, t
     seeds, and is listed in its own section with its steps, loader and success."""
     import shutil
 
-    from paper_report import SUPERSEDED, series, write
+    from eval.paper.report import SUPERSEDED, series, write
 
     paths, _ = smoke
     cells_dir = tmp_path / "cells" / "smoke" / "generalisation"
@@ -111,7 +137,7 @@ def test_superseded_cells_are_listed_apart_and_never_pooled_with_todays(smoke, t
     old["commands"] = dict(old["commands"], train=old["commands"]["train"] + " --dataset.streaming=true")
     (cells_dir / SUPERSEDED).mkdir()
     (cells_dir / SUPERSEDED / "old.json").write_text(json.dumps(old))
-    write(tmp_path, "smoke", "generalisation", "python eval/paper.py report --profile smoke")
+    write(tmp_path, "smoke", "generalisation", "python -m eval.paper report --profile smoke")
     table = (tmp_path / "smoke_generalisation.md").read_text()
     head, section = table.split("## Superseded cells")
     assert "12%" not in head and "seeds)" not in head  # not pooled as a second training seed
@@ -127,8 +153,8 @@ def test_a_finished_cell_is_never_run_again(smoke, monkeypatch, capsys):
         raise AssertionError(f"a finished cell ran a command: {args}")
 
     monkeypatch.setattr(paper_run, "run", no_command)
-    paper.main(["sample-efficiency", "--profile", "smoke", "--work-dir", str(paths.work),
-                "--results-dir", str(paths.results)])  # fmt: skip
+    harness(["sample-efficiency", "--profile", "smoke", "--work-dir", str(paths.work),
+             "--results-dir", str(paths.results)])  # fmt: skip
     assert "0 cells run now, 1 already finished" in capsys.readouterr().out
 
 
@@ -172,19 +198,12 @@ def test_evaluation_seeds_never_overlap_recording_seeds():
 
 def test_the_loader_is_chosen_per_task_for_the_main_job_and_the_harness(tmp_path):
     """MugHanging and Lightbulb train on LeRobot's map-style loader (full shuffle), the other tasks on its
-    streaming one, both in the main job (``--loader auto``) and in every harness cell; a wrong loader name is
-    a clear error."""
-    from paper_commands import train_command
+    streaming one: the task recipes say so, and every harness cell follows them."""
+    from eval.paper.commands import train_command
+    from lerobot_actionflow.recipes import LOADERS, task_recipe
 
-    from lerobot_actionflow.tools.demo import MAP_LOADER_FLAGS, STREAMING_LOADER_FLAGS, loader_flags
-
-    assert loader_flags("MugHanging") == MAP_LOADER_FLAGS == ("--num_workers=2",)
-    assert loader_flags("Stack") == STREAMING_LOADER_FLAGS
-    assert loader_flags("MugHanging", "stream") == STREAMING_LOADER_FLAGS
-    assert loader_flags("Stack", "map") == MAP_LOADER_FLAGS
-    with pytest.raises(ValueError, match="loader='shuffled': expected one of auto, stream, map"):
-        loader_flags("Stack", "shuffled")
-    assert loader_flags("Lightbulb") == MAP_LOADER_FLAGS
+    assert task_recipe("MugHanging").train.loader_flags() == list(LOADERS["map"]) == ["--num_workers=2"]
+    assert task_recipe("Lightbulb").train.loader == "map" and task_recipe("Stack").train.loader == "stream"
     cells = build("generalisation", PROFILES["cpu"]) + build("sample-efficiency", PROFILES["cpu"])
     trainings = {c.training.dataset.task: c.training for c in cells if c.training}
     assert {"MugHanging", "Lightbulb", "StackThree"} <= set(trainings)
@@ -196,7 +215,7 @@ def test_the_loader_is_chosen_per_task_for_the_main_job_and_the_harness(tmp_path
 
 
 def test_the_inference_steps_experiment_covers_the_robomimic_tasks_beside_the_papers_figures():
-    from paper_report import published_table
+    from eval.paper.report import published_table
 
     cpu = {g.task for g in PROFILES["cpu"].inference_steps}
     gpu = {g.task for g in PROFILES["gpu"].inference_steps}
@@ -228,13 +247,12 @@ def test_mug_hanging_runs_actionflow_with_its_runtime_settings_and_longer_traini
     (kept in the checkpoint's config, so lerobot-eval uses them); the diffusion baseline and the Lightbulb
     cells do not get them. Every generalisation training of ActionFlow runs 6000 steps on the cpu profile,
     every diffusion training at least its own minimum."""
-    from paper_commands import train_command
+    from eval.paper.commands import train_command
+    from lerobot_actionflow.recipes import task_recipe
 
-    from lerobot_actionflow.tools.demo import task_policy_flags
-
-    mug_runtime = task_policy_flags("MugHanging")
+    mug_runtime = tuple(task_recipe("MugHanging").train.policy_flags())
     assert mug_runtime == ("--policy.action_smoothing=0.5",)
-    assert task_policy_flags("Stack") == ()
+    assert task_recipe("Stack").train.policy_flags() == []
     cpu = PROFILES["cpu"]
     trainings = {(c.dataset.task, c.training.model, c.dataset.env_kwargs): c.training
                  for c in build("generalisation", cpu) if c.training}  # fmt: skip
@@ -257,8 +275,8 @@ def test_every_diffusion_training_normalises_the_object_poses_and_the_report_say
     superseded table) tells a raw-pose cell from a normalised one by its command."""
     import shlex
 
-    from paper_commands import train_command
-    from paper_report import training_of
+    from eval.paper.commands import train_command
+    from eval.paper.report import training_of
 
     diffusion = [c.training for p in PROFILES.values() for e in EXPERIMENTS for c in build(e, p)
                  if c.training and c.training.policy_type == "diffusion"]  # fmt: skip
@@ -282,9 +300,9 @@ def test_the_cpu_profile_trains_diffusion_at_least_its_minimum_with_its_learning
     the report names each diffusion cell's learning rate from its command."""
     import shlex
 
-    from paper_commands import train_command
-    from paper_profiles import CPU
-    from paper_report import training_of
+    from eval.paper.commands import train_command
+    from eval.paper.profiles import CPU
+    from eval.paper.report import training_of
 
     floor = CPU.min_steps["diffusion"]
     for experiment in EXPERIMENTS:
@@ -305,8 +323,8 @@ def test_diffusion_is_evaluated_under_ddim_at_every_k_and_under_its_own_ddpm_sam
     """The inference-steps experiment evaluates each Diffusion Policy training with DDIM at every K of the
     profile and once with the DDPM sampler it was trained with (all 100 steps), one training for all six; the
     report shows the two samplers as separate rows."""
-    from paper_commands import eval_command
-    from paper_report import series
+    from eval.paper.commands import eval_command
+    from eval.paper.report import series
 
     cells = [c for c in build("inference-steps", PROFILES["cpu"], ["Threading"]) if c.model == "DP"]
     assert len({c.training for c in cells}) == 1
@@ -327,8 +345,8 @@ def test_the_euclidean_flow_cells_name_the_frame_of_their_velocity(tmp_path):
     apart by their commands."""
     import shlex
 
-    from paper_commands import train_command
-    from paper_report import training_of
+    from eval.paper.commands import train_command
+    from eval.paper.report import training_of
 
     euclidean = [c.training for p in PROFILES.values() for e in EXPERIMENTS for c in build(e, p)
                  if c.training and c.training.model == "A.1-euclidean"]  # fmt: skip

@@ -227,13 +227,12 @@ def test_lerobot_eval_runs_a_checkpoint_through_env_type_actionflow(checkpoint, 
 def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(dataset, tmp_path):
     """LeRobot's diffusion policy reads observation.state + observation.environment_state: same data, same
     commands, with the benchmark's flags. Those min-max normalise the object poses (LeRobot's default mapping
-    has no ENV entry and would pass them raw), and ``eval/open_loop.py`` reads the checkpoint back through its
-    processors to raw actions."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
-    from ablate import Batches
+    has no ENV entry and would pass them raw), and ``eval/diagnostics/open_loop.py`` reads the checkpoint back
+    through its processors to raw actions, on the recorded dataset read with the policy's own windows."""
     from lerobot.policies.factory import make_pre_post_processors
-    from open_loop import load_policy
-    from paper_profiles import DIFFUSION_FLAGS
+
+    from eval.diagnostics.open_loop import demonstrations, load_policy, override, respace
+    from eval.paper.profiles import DIFFUSION_FLAGS
 
     out = tmp_path / "diffusion"
     cmd = [
@@ -252,7 +251,6 @@ def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(datas
 
     columns = LeRobotDataset(REPO_ID, root=dataset).hf_dataset.with_format("numpy")
     data = {k: np.stack(columns[k]) for k in SCHEMA}
-    data["episode"] = np.asarray(columns["episode_index"])
     env_state = torch.from_numpy(data["observation.environment_state"])
     pre, _ = make_pre_post_processors(PreTrainedConfig.from_pretrained(ckpt), pretrained_path=str(ckpt))
     state = torch.zeros(len(env_state), 10)
@@ -262,16 +260,20 @@ def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(datas
     assert normalised.abs().max() <= 1 + 1e-5, "object poses are not min-max normalised"
     assert (normalised.amax(0) - normalised.amin(0))[varying].min() > 1.99  # each spans [-1, 1]
 
-    n_obs, horizon, predict = load_policy(ckpt)
-    assert (n_obs, horizon) == (2, 8)  # the executed actions, from the current frame
-    batch = Batches(data, n_obs, horizon).at(torch.arange(5))
-    chunk = predict({k: v for k, v in batch.items() if k.startswith("observation.")})
+    loaded = load_policy(ckpt)
+    assert (loaded.config.n_obs_steps, loaded.horizon) == (2, 8)  # the executed actions, from the frame on
+    demo = demonstrations(loaded.config, dataset, REPO_ID, loaded.horizon, episodes=1)
+    length = int(LeRobotDataset(REPO_ID, root=dataset).meta.episodes["length"][0])
+    assert demo.actions.shape == (length, 8, 10) and set(demo.episode.tolist()) == {0}
+    np.testing.assert_array_equal(demo.actions[:, 0].numpy(), data["action"][:length])  # from the frame on
+    assert demo.observations["observation.state"].shape == (length, 2, 10)  # the policy's history
+    observation = {k: v[:5] for k, v in demo.observations.items()}
+    predict = loaded.predict
+    chunk = predict(observation)
     assert chunk.shape == (5, 8, 10) and torch.isfinite(chunk).all()
     low, high = data["action"].min(0), data["action"].max(0)  # the DDPM sample is clipped to the data's range
     assert ((chunk.numpy() >= low - 1e-4) & (chunk.numpy() <= high + 1e-4)).all()
     # The open-loop probe's --set overrides the sampler as lerobot-eval's --policy.* flags do.
-    from open_loop import override
-
     saved = PreTrainedConfig.from_pretrained(ckpt)
     settings = {"noise_scheduler_type": "DDIM", "num_inference_steps": "3", "clip_sample": "false"}
     ddim = override(saved, settings)
@@ -281,8 +283,7 @@ def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(datas
         override(saved, {"num_steps": "3"})
     with pytest.raises(SystemExit, match="clip_sample=maybe: expected true or false"):
         override(saved, {"clip_sample": "maybe"})
-    _, _, predict_ddim = load_policy(ckpt, {"noise_scheduler_type": "DDIM", "num_inference_steps": "3"})
-    observation = {k: v for k, v in batch.items() if k.startswith("observation.")}
+    predict_ddim = load_policy(ckpt, {"noise_scheduler_type": "DDIM", "num_inference_steps": "3"}).predict
     torch.manual_seed(0)
     ddpm_chunk = predict(observation)
     torch.manual_seed(0)
@@ -290,7 +291,6 @@ def test_diffusion_baseline_trains_and_evaluates_through_the_same_commands(datas
     assert ddim_chunk.shape == (5, 8, 10) and torch.isfinite(ddim_chunk).all()
     assert not torch.allclose(ddim_chunk, ddpm_chunk)  # the same noise, another sampler: the override took
     from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
-    from open_loop import respace
 
     policy = DiffusionPolicy.from_pretrained(ckpt, config=ddim)
     respace(policy, "trailing")  # K = 3 from the noisiest step, not from t = 100 - 100 / 3
@@ -409,75 +409,3 @@ def test_every_recipe_in_datasets_is_valid():
         recipe = load_recipe(path)
         assert recipe.variant in names[recipe.task].variants, path
         assert path.stem == recipe.repo_id.split("/")[-1], path
-
-
-def test_ablation_batches_are_lerobot_dataset_windows(dataset):
-    """eval/ablate.py trains from tensors instead of LeRobotDataset; its samples must be exactly what
-    lerobot-train gets with ActionFlow's delta timestamps (history padded at the episode start, actions padded
-    and flagged past its end), or its ablations would not transfer to lerobot-train."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
-    from ablate import Batches
-
-    keys = ("observation.token_poses", "observation.token_features")
-    deltas = {k: [-1 / 20, 0.0] for k in keys} | {"action": [i / 20 for i in range(16)]}
-    ds = LeRobotDataset(REPO_ID, root=dataset, delta_timestamps=deltas)
-    columns = ds.hf_dataset.with_format("numpy")
-    data = {k: np.stack(columns[k]) for k in (*keys, "action")}
-    data["episode"] = np.asarray(columns["episode_index"])
-    batches = Batches(data, n_obs=2, horizon=16)
-    frames = [0, 1, 5, ds.meta.episodes["length"][0] - 3, ds.meta.episodes["length"][0], len(ds) - 1]
-    ours = batches.at(torch.tensor(frames))
-    for row, frame in enumerate(frames):
-        item = ds[frame]
-        for key in (*keys, "action", "action_is_pad"):
-            assert torch.equal(ours[key][row], item[key]), f"{key} differs at frame {frame}"
-    assert ours["action_is_pad"][-1].sum() == 15  # the last frame: one real action, then padding
-
-
-def test_ablation_checkpoint_loads_as_lerobot_eval_loads_it(tmp_path):
-    """eval/ablate.py --save writes what lerobot-train writes (weights, config and both processor pipelines),
-    so that lerobot-eval --policy.path loads it; without the pipelines LeRobot refuses the folder."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
-    import ablate
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import make_pre_post_processors
-
-    from lerobot_actionflow import ActionFlowPolicy, schema
-
-    ckpt = tmp_path / "ckpt"
-    files = ["--cache", str(tmp_path / "data"), "--results", str(tmp_path / "r.jsonl"), "--save", str(ckpt)]
-    ablate.main(["--task", "Stack", "--variant", "D0", "--episodes", "1", "--steps", "2",
-                 "--eval-episodes", "1", *files])  # fmt: skip
-    assert {"policy_preprocessor.json", "policy_postprocessor.json"} <= {p.name for p in ckpt.iterdir()}
-    cfg = PreTrainedConfig.from_pretrained(ckpt)
-    pre, post = make_pre_post_processors(cfg, pretrained_path=str(ckpt))
-    policy = ActionFlowPolicy.from_pretrained(ckpt)
-    env = gym.make("gym_actionflow/Stack-v0", variant="D0")
-    obs, _ = env.reset(seed=0)
-    action = post(policy.select_action(pre(schema.policy_batch(obs))))
-    assert action.shape == (1, env.action_space.shape[0])
-    env.close()
-
-
-def test_ablation_camera_frames_are_what_the_policy_sees_in_evaluation(tmp_path):
-    """eval/ablate.py keeps camera frames as rendered (uint8, H x W x 3) and a batch gives them as LeRobot's
-    loader does, (3, H, W) floats in [0, 1] with the history padded at the episode start; each must equal
-    what the evaluation's ``schema.policy_batch`` makes of the same render."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
-    import ablate
-
-    from lerobot_actionflow import schema
-
-    key = "observation.images.wrist"
-    data = ablate.record("Stack", "D0", 1, 1.0, {"obs_mode": "pixels", "image_size": 32}, tmp_path)
-    assert data[key].dtype == np.uint8 and data[key].shape[1:] == (32, 32, 3)
-    assert data["observation.token_poses"].dtype == np.float32
-    batches = ablate.Batches(data, n_obs=2, horizon=16)
-    frames = torch.tensor([0, 1, 7])
-    batch = batches.at(frames)
-    assert batch[key].shape == (3, 2, 3, 32, 32) and batch[key].dtype == torch.float32
-    for row, frame in enumerate(frames.tolist()):
-        for step, source in enumerate((max(frame - 1, 0), frame)):
-            seen = schema.policy_batch({"pixels": {"wrist": data[key][source]}})[key][0]
-            assert torch.equal(batch[key][row, step], seen), f"frame {frame}, history step {step}"
-    assert float(batch[key].max()) <= 1.0 and float(batch[key].max()) > 0.1

@@ -133,13 +133,15 @@ def record_rollout(
     token_names: list[str] | None = None,
     flow: bool = True,
 ) -> dict:
-    """Run ``policy`` on ``env`` from ``reset(seed)`` until the episode ends; save everything to ``path``.
+    """Run ``policy`` on ``env`` from ``reset(seed)`` until the episode ends
+    (:func:`gym_actionflow.rollout.rollout`); save everything to ``path``.
 
     ``flow``: log every Euler step of each generated chunk (``world/flow/step_<k>``, see :func:`log_flow`);
     the policy's actions are the same either way.
 
     Returns ``{"success": bool, "steps": int, "path": Path}``."""
     import rerun as rr
+    from gym_actionflow.rollout import rollout
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -148,61 +150,66 @@ def record_rollout(
     names = token_names or ["eef", *env.unwrapped.entity_names]
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
+    eef_path: list[np.ndarray] = []
+    logged_chunk = None
+
+    def act(obs: dict) -> np.ndarray:
+        """Log the scene at this step, then the policy's action and any chunk it generated for it."""
+        nonlocal logged_chunk
+        rec.set_time("step", sequence=len(eef_path))
+        _log_scene(rec, obs["token_poses"], names)
+        eef_path.append(obs["token_poses"][0, :3].copy())
+        if len(eef_path) > 1:
+            rec.log("world/eef_path", rr.LineStrips3D([np.array(eef_path)], colors=PATH_COLOR, radii=0.002))
+        if "point_cloud" in obs:
+            rec.log("world/point_cloud", rr.Points3D(obs["point_cloud"], radii=0.002, colors=(120, 120, 120)))
+        if "pixels" in obs:
+            for cam, image in obs["pixels"].items():
+                rec.log(cam, rr.Image(image))
+
+        batch = preprocessor(schema.policy_batch(obs))
+        with torch.inference_mode():
+            action = postprocessor(policy.select_action(batch))
+        if policy.last_chunk is not None and policy.last_chunk is not logged_chunk:
+            logged_chunk = policy.last_chunk  # a new chunk was generated at this step
+            _log_path(rec, "world/chunk", logged_chunk[0].cpu().numpy(), CHUNK_COLOR)
+            if flow:
+                log_flow(rec, policy.last_flow)
+        action = action[0].cpu().numpy()
+        rec.log("gripper/command", rr.Scalars(float(action[9])))
+        rec.log("gripper/opening", rr.Scalars(float(obs["agent_pos"][9])))
+        return action
+
+    def stepped(obs: dict, reward: float, terminated: bool, truncated: bool, info: dict) -> None:
+        rec.log("success", rr.Scalars(float(info["is_success"])))
+
     record_flow = policy.record_flow
     policy.record_flow = flow
     try:
         policy.reset()
-        obs, info = env.reset(seed=seed)
-        eef_path: list[np.ndarray] = []
-        logged_chunk = None
-        steps, done = 0, False
-        while not done:
-            rec.set_time("step", sequence=steps)
-            _log_scene(rec, obs["token_poses"], names)
-            eef_path.append(obs["token_poses"][0, :3].copy())
-            if len(eef_path) > 1:
-                rec.log(
-                    "world/eef_path", rr.LineStrips3D([np.array(eef_path)], colors=PATH_COLOR, radii=0.002)
-                )
-            if "point_cloud" in obs:
-                rec.log(
-                    "world/point_cloud", rr.Points3D(obs["point_cloud"], radii=0.002, colors=(120, 120, 120))
-                )
-            if "pixels" in obs:
-                for cam, image in obs["pixels"].items():
-                    rec.log(cam, rr.Image(image))
-
-            batch = preprocessor(schema.policy_batch(obs))
-            with torch.inference_mode():
-                action = postprocessor(policy.select_action(batch))
-            if policy.last_chunk is not None and policy.last_chunk is not logged_chunk:
-                logged_chunk = policy.last_chunk  # a new chunk was generated at this step
-                _log_path(rec, "world/chunk", logged_chunk[0].cpu().numpy(), CHUNK_COLOR)
-                if flow:
-                    log_flow(rec, policy.last_flow)
-            action = action[0].cpu().numpy()
-            rec.log("gripper/command", rr.Scalars(float(action[9])))
-            rec.log("gripper/opening", rr.Scalars(float(obs["agent_pos"][9])))
-            obs, _, terminated, truncated, info = env.step(action)
-            rec.log("success", rr.Scalars(float(info["is_success"])))
-            steps += 1
-            done = terminated or truncated
+        episode = rollout(env, act, seed, after_step=stepped)
     finally:
         policy.record_flow = record_flow
         rec.flush()
         rec.disconnect()
-    return {"success": bool(info["is_success"]), "steps": steps, "path": path}
+    return {"success": episode.success, "steps": episode.steps, "path": path}
 
 
-def load_dataset(config, root: str | Path, repo_id: str):
-    """The LeRobotDataset at ``root`` with the windows ``config`` (an ``ActionFlowConfig``) trains on: each
+def load_dataset(
+    config, root: str | Path, repo_id: str, episodes: list[int] | None = None, action_steps: int | None = None
+):
+    """The LeRobotDataset at ``root`` with the windows ``config`` (a LeRobot policy config) trains on: each
     frame holds ``n_obs_steps`` of observation history and ``horizon`` actions, padded at episode ends (as
-    ``lerobot-train`` loads it)."""
+    ``lerobot-train`` loads it). ``episodes`` keeps only those episodes; ``action_steps`` makes the action
+    window that many actions from the frame on instead (what an evaluation compares a chunk with)."""
     from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
     meta = LeRobotDatasetMetadata(repo_id, root=root)
-    return LeRobotDataset(repo_id, root=root, delta_timestamps=resolve_delta_timestamps(config, meta))
+    deltas = resolve_delta_timestamps(config, meta) or {}
+    if action_steps is not None:
+        deltas[schema.ACTION] = [i / meta.fps for i in range(action_steps)]
+    return LeRobotDataset(repo_id, root=root, episodes=episodes, delta_timestamps=deltas or None)
 
 
 def record_dataset_flow(
