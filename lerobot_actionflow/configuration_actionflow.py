@@ -150,6 +150,14 @@ class ActionFlowConfig(PreTrainedConfig):
     latency_compensation: bool = False
     control_fps: float = 20.0
 
+    # What the policy was trained on, recorded from the dataset by lerobot-train (saved with the checkpoint):
+    # the dataset's task descriptions, and the names of the scene tokens where the dataset names them.
+    # `lerobot-eval` refuses an environment whose task is not among `trained_tasks` (the token shapes of two
+    # tasks can match, and such a run would score 0 % without a word); `check_task=false` allows it.
+    trained_tasks: list[str] = field(default_factory=list)
+    token_names: list[str] = field(default_factory=list)
+    check_task: bool = True
+
     # Training presets: the settings every published figure trained with (AdamW at 1e-3 after 100 warm-up
     # steps, cosine decay to 1e-5 over the run: `lerobot-train --steps` sets the decay's length, see
     # `get_scheduler_preset`). Checkpoints saved before these were the defaults keep their saved values.
@@ -298,6 +306,14 @@ class ActionFlowConfig(PreTrainedConfig):
                 f"action has shape {tuple(action.shape)}; expected (10,): target EEF pose {POSE_LAYOUT} "
                 "+ gripper command in [-1, 1]"
             )
+
+    def set_dataset_feature_metadata(self, features: dict) -> None:
+        """Called by LeRobot's ``make_policy`` with the dataset's features: keep the scene tokens' names."""
+        names = (features.get(TOKEN_POSES) or {}).get("names")
+        if isinstance(names, dict):  # {"token": [...], "pose": [...]}: the first axis names the tokens
+            names = next(iter(names.values()), None)
+        if isinstance(names, list) and all(isinstance(n, str) for n in names):
+            self.token_names = list(names)
 
     def model_spec(self) -> ModelSpec:
         """The plain-data spec :class:`~lerobot_actionflow.core.model.ActionFlowModel` is built from: this

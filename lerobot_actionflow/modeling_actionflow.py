@@ -27,8 +27,15 @@ from lerobot_actionflow.schema import ACTION, ACTION_DIM, POSE_DIM, POSE_LAYOUT,
 LEGACY_DEFAULTS = {"squash_limit": 1.0, "rotation_noise_std": None, "euclidean_frame": "eef"}
 """Config fields whose default changed after checkpoints were published, with the value those checkpoints were
 trained with: a saved config that lacks the field gets this value back on loading, not today's default."""
-_HUB_KWARGS = ("force_download", "resume_download", "proxies", "token", "cache_dir", "local_files_only",
-               "revision")
+_HUB_KWARGS = (
+    "force_download",
+    "resume_download",
+    "proxies",
+    "token",
+    "cache_dir",
+    "local_files_only",
+    "revision",
+)
 
 
 def saved_config_keys(pretrained_name_or_path: str | Path, **hub_kwargs) -> set[str] | None:
@@ -41,8 +48,9 @@ def saved_config_keys(pretrained_name_or_path: str | Path, **hub_kwargs) -> set[
         else:
             from huggingface_hub import hf_hub_download
 
-            config_file = hf_hub_download(repo_id=str(pretrained_name_or_path), filename="config.json",
-                                          **hub_kwargs)
+            config_file = hf_hub_download(
+                repo_id=str(pretrained_name_or_path), filename="config.json", **hub_kwargs
+            )
         return set(json.loads(Path(config_file).read_text()))
     except Exception:  # noqa: BLE001 - missing or unreadable: not ours to report
         return None
@@ -73,10 +81,14 @@ class ActionFlowPolicy(PreTrainedPolicy):
     """True: ``select_action`` keeps every Euler step of each new chunk in ``last_flow`` (for visualisation);
     the chunk is the same either way."""
 
-    def __init__(self, config: ActionFlowConfig, **kwargs):
+    def __init__(self, config: ActionFlowConfig, dataset_meta=None, **kwargs):
         super().__init__(config)
         config.validate_features()
         self.config = config
+        if dataset_meta is not None and getattr(dataset_meta, "tasks", None) is not None:
+            # lerobot-train: the checkpoint records which task(s) it learned (lerobot-eval checks them).
+            config.trained_tasks = sorted(str(t) for t in dataset_meta.tasks.index)
+        self._task_checked = False
         model = ActionFlowModel(config.model_spec())
         # Checkpoints hold the network's weights as `network.*` (the names from before the model existed): the
         # network is registered here under that name, and the model, which has no weights of its own, is kept
@@ -135,6 +147,19 @@ class ActionFlowPolicy(PreTrainedPolicy):
                     logging.info(f"{pretrained_name_or_path}: saved before '{name}' existed; using {legacy}")
                     setattr(config, name, legacy)
         return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
+
+    @classmethod
+    def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
+        """LeRobot's loading of the weights, with a damaged file named instead of a deep traceback."""
+        from safetensors import SafetensorError
+
+        try:
+            return super()._load_as_safetensor(model, model_file, map_location, strict)
+        except SafetensorError as err:
+            raise ValueError(
+                f"cannot read the policy weights {model_file}: {err}. The file is damaged or incomplete (an "
+                "interrupted download or copy?): copy or download the checkpoint again"
+            ) from None
 
     def reset(self):
         """Clear the observation history and the action queue; call on every ``env.reset()``."""
@@ -240,9 +265,28 @@ class ActionFlowPolicy(PreTrainedPolicy):
             )
         return FlowTrajectory(times=times, actions=actions)
 
+    def _check_task(self, batch: dict) -> None:
+        """Refuse an environment whose task (``batch["task"]``, which lerobot-eval fills from the env's
+        ``task_description``) is not one this checkpoint was trained on. Once per policy."""
+        self._task_checked = True
+        tasks = batch.get("task")
+        if not (self.config.check_task and self.config.trained_tasks and tasks):
+            return
+        tasks = [tasks] if isinstance(tasks, str) else list(tasks)
+        foreign = sorted({t for t in tasks if t and t not in self.config.trained_tasks})
+        if foreign:
+            raise ValueError(
+                f"this checkpoint was trained on the task {self.config.trained_tasks} but the environment's "
+                f"task is {foreign}: evaluate it on the task it learned (its tokens "
+                f"{self.config.token_names or '(unnamed)'} can match another task's by shape, and such a run "
+                "fails without a word), or pass --policy.check_task=false to run it anyway"
+            )
+
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """One action ``[B, 10]`` per call: a new chunk is sampled every ``n_action_steps`` calls."""
+        if not self._task_checked:
+            self._check_task(batch)
         for key in self.observation_keys:
             if key not in batch:
                 self._check_and_stack(batch)  # raises the missing-key error
