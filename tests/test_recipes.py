@@ -98,3 +98,27 @@ def test_actionflow_recipe_refuses_bad_input_with_exit_2(capsys):
             recipe_main(argv)
         assert exit_info.value.code == 2
         assert message in capsys.readouterr().err
+
+
+def test_every_dataset_recipe_carries_its_tasks_training(tmp_path, capsys):
+    """Each datasets/*.toml reads as one recipe: what to record plus its task's training and evaluation; a
+    [train] table in the file overrides the task's, and `actionflow-recipe FILE` prints it."""
+    from pathlib import Path
+
+    from lerobot_actionflow.recipes.dataset import load_dataset_recipe
+
+    files = sorted((Path(__file__).resolve().parents[1] / "datasets").glob("*.toml"))
+    assert files
+    for path in files:
+        dataset = load_dataset_recipe(path)
+        assert dataset.recipe == task_recipe(dataset.record.task), path.name  # none overrides today
+    own = tmp_path / "mug_short.toml"
+    own.write_text(
+        'task = "MugHanging"\nvariant = "train"\nepisodes = 5\nrepo_id = "local/mug_short"\n'
+        "[train]\nsteps = 300\n[eval]\nvariants = [\"test\"]\n"
+    )
+    dataset = load_dataset_recipe(own)
+    assert dataset.recipe.train.steps == 300 and dataset.recipe.train.policy == {"action_smoothing": 0.5}
+    recipe_main([str(own), "--out", str(tmp_path / "o")])
+    lines = [line for line in capsys.readouterr().out.splitlines() if not line.startswith("#")]
+    assert "--steps=300" in lines[1] and len(lines) == 3 and "--env.variant=test" in lines[2]
