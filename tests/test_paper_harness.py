@@ -301,6 +301,7 @@ def test_the_cpu_profile_trains_diffusion_at_least_its_minimum_with_its_learning
     import shlex
 
     from eval.paper.commands import train_command
+    from eval.paper.plan import group_steps
     from eval.paper.profiles import CPU
     from eval.paper.report import training_of
 
@@ -308,7 +309,7 @@ def test_the_cpu_profile_trains_diffusion_at_least_its_minimum_with_its_learning
     for experiment in EXPERIMENTS:
         groups = {(g.task, g.variant): g for g in getattr(CPU, experiment.replace("-", "_"))}
         for t in {c.training for c in build(experiment, CPU) if c.training}:
-            group = groups[t.dataset.task, t.dataset.variant].steps or CPU.steps[experiment]
+            group = group_steps(CPU, experiment, groups[t.dataset.task, t.dataset.variant])
             if t.policy_type != "diffusion":
                 assert t.steps == group, t.key
                 continue

@@ -129,10 +129,16 @@ class Paths:
         return self.cells(cell.profile, cell.experiment) / f"{cell.key}.json"
 
 
+def group_steps(profile: Profile, experiment: str, group: Group) -> int:
+    """A group's training steps: its own, its task recipe's (``steps="recipe"``) or the profile's."""
+    if group.steps == "recipe":
+        return task_recipe(group.task).train.steps
+    return group.steps or profile.steps[experiment]
+
+
 def _trainings(profile: Profile, experiment: str, group: Group, models: set[str] | None, steps: int | None):
     """(dataset, training) pairs of a group, for the models asked for."""
-    group_steps = task_recipe(group.task).train.steps if group.steps == "recipe" else group.steps
-    base = steps or group_steps or profile.steps[experiment]
+    base = steps or group_steps(profile, experiment, group)
     for demos in group.demos:
         dataset = Dataset(group.task, group.variant, demos, env_kwargs=group.env_kwargs)
         for name in group.models:
