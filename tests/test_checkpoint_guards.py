@@ -57,6 +57,7 @@ def _eval(checkpoint: Path, task: str, tmp: Path, *extra: str) -> subprocess.Com
 def test_the_checkpoint_records_its_task(checkpoint):
     config = ActionFlowPolicy.from_pretrained(checkpoint).config
     assert config.trained_tasks == [STACK]
+    assert config.token_names == ["eef", "cube_a", "cube_b"]  # from the dataset's feature names
 
 
 def test_lerobot_eval_on_another_task_is_a_clear_error(checkpoint, tmp_path):
@@ -67,8 +68,9 @@ def test_lerobot_eval_on_another_task_is_a_clear_error(checkpoint, tmp_path):
     assert res.returncode != 0
     assert f"trained on the task ['{STACK}']" in out and "Pick up the mug" in out, out[-3000:]
     assert "--policy.check_task=false" in out
-    forced = _eval(checkpoint, "MugHanging-v0", tmp_path, "--policy.check_task=false")
-    assert forced.returncode == 0, forced.stdout[-3000:] + forced.stderr[-3000:]
+    policy = ActionFlowPolicy.from_pretrained(checkpoint)
+    policy.config.check_task = False  # what --policy.check_task=false sets: the foreign task is let through
+    policy._check_task({"task": ["Pick up the mug and hang it by its handle on the hanger's peg."]})
 
 
 def test_a_truncated_weights_file_is_named(checkpoint, tmp_path):
