@@ -14,7 +14,8 @@ from torch.optim.lr_scheduler import LambdaLR
 from lerobot_actionflow.core.adaptation import SQUASH_MODES
 from lerobot_actionflow.core.flow import EUCLIDEAN_FRAMES
 from lerobot_actionflow.core.mixers import MIXERS
-from lerobot_actionflow.core.model import ModelSpec, Sampler
+from lerobot_actionflow.core.model import Sampler
+from lerobot_actionflow.core.spec import ModelSpec
 from lerobot_actionflow.schema import (
     ACTION,
     ACTION_DIM,

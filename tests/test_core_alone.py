@@ -10,7 +10,7 @@ from dataclasses import fields
 import torch
 
 from lerobot_actionflow import ActionFlowConfig
-from lerobot_actionflow.core.model import ModelSpec
+from lerobot_actionflow.core.spec import ModelSpec
 
 BLOCK_LEROBOT = """
 import importlib.abc, sys
@@ -39,7 +39,8 @@ def test_core_imports_builds_and_samples_where_lerobot_cannot_be_imported():
     the core must build a model from a ModelSpec, take a loss and sample a chunk with LeRobot absent."""
     result = _run("""
         import torch
-        from lerobot_actionflow.core.model import ActionFlowModel, ModelSpec, Sampler
+        from lerobot_actionflow.core.model import ActionFlowModel, Sampler
+        from lerobot_actionflow.core.spec import ModelSpec
         assert not any(m == "lerobot" or m.startswith("lerobot.") for m in sys.modules), "lerobot imported"
         torch.manual_seed(0)
         model = ActionFlowModel(ModelSpec(tokens_per_step=3, token_feature_dim=4, dim=32, ipa_layers=1,

@@ -25,11 +25,12 @@ from lerobot_actionflow.core.adaptation import squash
 from lerobot_actionflow.core.ipa import SE3InvariantTransformer, transformer_encoder
 
 if TYPE_CHECKING:
-    from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
+    from lerobot_actionflow.core.network import ActionFlowNetwork, SceneTokens
+    from lerobot_actionflow.core.spec import ModelSpec
 
 
 class Mixer(Protocol):
-    def build(self, spec: NetworkSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
+    def build(self, spec: ModelSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
         """The modules this architecture adds to the network, by attribute name (created in this order)."""
 
     def observe(self, net: ActionFlowNetwork, s: Tensor, rot: Tensor, trans: Tensor) -> Tensor:
@@ -51,7 +52,7 @@ def pose_features(rot: Tensor, trans: Tensor, squash_limit: float, squash_mode: 
 class IPAMixer:
     """A.1: tokens keep their poses; IPA sees the squashed translations."""
 
-    def build(self, spec: NetworkSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
+    def build(self, spec: ModelSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
         return {
             "mixer": SE3InvariantTransformer(
                 spec.dim, spec.num_heads, spec.ipa_layers, spec.transformer_layers, spec.ipa_head_dim,
@@ -74,7 +75,7 @@ class IPAMixer:
 class PoseEmbeddingMixer:
     """A.2: each token's pose is embedded into its feature; a plain transformer encoder mixes them."""
 
-    def build(self, spec: NetworkSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
+    def build(self, spec: ModelSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
         encoder = transformer_encoder(spec.dim, spec.num_heads, spec.transformer_layers, spec.dropout)
         return {"pose_embed": nn.Linear(9, spec.dim), "mixer": nn.Sequential(encoder, nn.LayerNorm(spec.dim))}
 
@@ -93,7 +94,7 @@ class PoseEmbeddingMixer:
 class PooledMixer(PoseEmbeddingMixer):
     """A.3: as A.2, with every observation token pooled into one conditioning token (its pose unused)."""
 
-    def build(self, spec: NetworkSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
+    def build(self, spec: ModelSpec, num_obs_tokens: int) -> dict[str, nn.Module]:
         pool = nn.Sequential(
             nn.Linear(num_obs_tokens * spec.dim, spec.dim), nn.GELU(), nn.Linear(spec.dim, spec.dim)
         )

@@ -15,7 +15,7 @@ Data flow for one chunk::
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
@@ -24,63 +24,12 @@ from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.adaptation import EEFFrame
 from lerobot_actionflow.core.encoders import random_shift
 from lerobot_actionflow.core.flow import SE3State, euler_states, make_flow, time_grid
-from lerobot_actionflow.core.network import ActionFlowNetwork, NetworkSpec, SceneTokens
+from lerobot_actionflow.core.network import ActionFlowNetwork, SceneTokens
+from lerobot_actionflow.core.spec import ModelSpec
 from lerobot_actionflow.schema import GRIPPER_DIM, POINT_CLOUD, POSE_DIM, TOKEN_FEATURES, TOKEN_POSES
 
 LOSS_TERMS = {"translation": "translation", "rotation": "rotation", "gripper": "extra"}
 """Loss term -> the part of the flow's velocity it measures (the flow's extras are the gripper command)."""
-
-
-@dataclass(frozen=True)
-class ModelSpec:
-    """Everything :class:`ActionFlowModel` is built from: the observation layout it reads and the settings of
-    the adaptation module, the flow, the loss and the network. The defaults are ``ActionFlowConfig``'s
-    (tests/test_policy.py checks they agree); the fields' meaning is documented there."""
-
-    tokens_per_step: int
-    """N, the scene tokens per observation step (token 0 = end effector)."""
-    token_feature_dim: int
-    """F, the feature width of each scene token."""
-    image_keys: tuple[str, ...] = ()
-    point_cloud: bool = False
-    n_obs_steps: int = 2
-    horizon: int = 16
-    translation_scale: float = 10.0
-    squash_limit: float = 3.0
-    squash_mode: str = "axis"
-    action_space: str = "se3"
-    euclidean_frame: str = "action"
-    rotation_noise_std: float | None = 0.5
-    translation_loss_weight: float = 1.0
-    rotation_loss_weight: float = 1.0
-    gripper_loss_weight: float = 1.0
-    image_random_shift: int = 0
-    architecture: str = "ipa"
-    dim: int = 128
-    num_heads: int = 4
-    ipa_layers: int = 2
-    transformer_layers: int = 2
-    ipa_head_dim: int = 16
-    ipa_query_points: int = 4
-    ipa_value_points: int = 4
-    dropout: float = 0.0
-    point_encoder: str = "pointnet"
-    image_encoder: str = "cnn"
-    image_placement: str = "token"
-
-    @classmethod
-    def settings(cls) -> tuple[str, ...]:
-        """The fields a config supplies by name (the layout fields come from its input features)."""
-        layout = {"tokens_per_step", "token_feature_dim", "image_keys", "point_cloud"}
-        return tuple(f.name for f in fields(cls) if f.name not in layout)
-
-
-NETWORK_FIELDS = (
-    "architecture", "dim", "num_heads", "ipa_layers", "transformer_layers", "ipa_head_dim",
-    "ipa_query_points", "ipa_value_points", "dropout", "point_encoder", "image_encoder", "image_placement",
-    "image_keys", "point_cloud", "n_obs_steps", "horizon", "squash_limit", "squash_mode",
-)  # fmt: skip
-"""The :class:`ModelSpec` fields the velocity network is built from (the rest: flow, loss, frame)."""
 
 
 @dataclass(frozen=True)
@@ -106,15 +55,7 @@ class ActionFlowModel(nn.Module):
             (POINT_CLOUD,) if self.has_point_cloud else ()
         )
         """The observation keys the model reads, each ``[B, T, ...]``."""
-        self.network = ActionFlowNetwork(
-            NetworkSpec(
-                token_feature_dim=spec.token_feature_dim,
-                tokens_per_step=spec.tokens_per_step,
-                action_input_dim=self.flow.network_input_dim,
-                velocity_dim=self.flow.velocity_dim,
-                **{name: getattr(spec, name) for name in NETWORK_FIELDS},
-            )
-        )
+        self.network = ActionFlowNetwork(spec, self.flow.network_input_dim, self.flow.velocity_dim)
 
     def encode(self, obs: dict[str, Tensor]) -> tuple[EEFFrame, SceneTokens]:
         """Adaptation module + encoders, once per chunk: the EEF frame of the current step and the scene

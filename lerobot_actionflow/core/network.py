@@ -2,7 +2,7 @@
 
 It sees only tensors already brought into the scaled EEF frame by :mod:`lerobot_actionflow.core.adaptation`.
 The encoders turn each modality into tokens with poses; the architecture's mixer
-(:mod:`lerobot_actionflow.core.mixers`, selected by ``NetworkSpec.architecture``) mixes them with the action
+(:mod:`lerobot_actionflow.core.mixers`, selected by ``ModelSpec.architecture``) mixes them with the action
 tokens; a linear head reads one velocity per action token.
 """
 
@@ -23,6 +23,7 @@ from lerobot_actionflow.core.encoders import (
     VNPointNetEncoder,
 )
 from lerobot_actionflow.core.mixers import MIXERS
+from lerobot_actionflow.core.spec import ModelSpec
 
 
 @dataclass
@@ -40,42 +41,6 @@ class SceneTokens:
     trans: Tensor
     squashed_trans: Tensor
     action_embed: Tensor
-
-
-@dataclass
-class NetworkSpec:
-    """Everything the network needs to know about its inputs and outputs."""
-
-    token_feature_dim: int
-    tokens_per_step: int
-    n_obs_steps: int
-    horizon: int
-    action_input_dim: int  # per-step action quantities fed as features (gripper; flat vector for Euclidean)
-    velocity_dim: int
-    image_keys: tuple[str, ...] = ()
-    image_encoder: str = "cnn"
-    """``"cnn"``: :class:`ImageEncoder`; ``"resnet18"``: :class:`ResNet18ImageEncoder` (the paper's)."""
-    image_placement: str = "token"
-    """``"token"``: each image is its own token, posed at the EEF token of its step; ``"eef"`` (the paper's):
-    its feature is added to the EEF token's feature of its step (no token of its own)."""
-    point_cloud: bool = False
-    point_encoder: str = "pointnet"
-    """``"pointnet"``: plain PointNet, identity token rotation; ``"vn"``: Vector-Neuron PointNet and frame."""
-    squash_limit: float = 1.0
-    """Translations reach the network as ``squash_limit * tanh(trans / squash_limit)`` (scaled EEF frame)."""
-    squash_mode: str = "axis"
-    """``"axis"``: per coordinate (the paper's); ``"radial"``: the distance (see :func:`squash`)."""
-    architecture: str = "ipa"
-    """A key of :data:`~lerobot_actionflow.core.mixers.MIXERS`: ``ipa`` (A.1), ``multi_token`` (A.2),
-    ``single_token`` (A.3)."""
-    dim: int = 128
-    num_heads: int = 4
-    ipa_layers: int = 2
-    transformer_layers: int = 2
-    ipa_head_dim: int = 16
-    ipa_query_points: int = 4
-    ipa_value_points: int = 4
-    dropout: float = 0.0
 
 
 class FlowTimeEmbedding(nn.Module):
@@ -97,7 +62,9 @@ class FlowTimeEmbedding(nn.Module):
 class ActionFlowNetwork(nn.Module):
     """Observation and action tokens in (scaled EEF frame), one velocity per action token out."""
 
-    def __init__(self, spec: NetworkSpec):
+    def __init__(self, spec: ModelSpec, action_input_dim: int, velocity_dim: int):
+        """``action_input_dim``: per-step action quantities fed as features (the gripper; the flat vector of
+        the Euclidean flow); ``velocity_dim``: the flow's velocity per action step."""
         super().__init__()
         if spec.architecture not in MIXERS:
             raise ValueError(f"architecture={spec.architecture!r}; expected one of {tuple(MIXERS)}")
@@ -116,13 +83,13 @@ class ActionFlowNetwork(nn.Module):
         self.action_feature = nn.Parameter(torch.randn(dim) * 0.02)
         self.action_index_embed = nn.Parameter(torch.randn(spec.horizon, dim) * 0.02)
         self.time_embed = FlowTimeEmbedding(dim)
-        self.action_input = nn.Linear(spec.action_input_dim, dim)
+        self.action_input = nn.Linear(action_input_dim, dim)
         # The architecture's own modules, registered on the network under the names checkpoints hold.
         self.mix = MIXERS[spec.architecture]
         num_obs_tokens = spec.n_obs_steps * (spec.tokens_per_step + extra_tokens)
         for name, module in self.mix.build(spec, num_obs_tokens).items():
             self.add_module(name, module)
-        self.head = nn.Linear(dim, spec.velocity_dim)
+        self.head = nn.Linear(dim, velocity_dim)
 
     def encode_observation(
         self,
