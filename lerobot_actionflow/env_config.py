@@ -6,6 +6,12 @@
 ``--env.task`` is the task's id without the ``gym_actionflow/`` prefix (``StackThree-v0``, ...); LeRobot makes
 ``gym_actionflow/<task>``. Features follow the token schema (:mod:`lerobot_actionflow.schema`): env key ->
 policy key.
+
+A plain LeRobot camera layout (``observation.state`` and ``observation.images.<cam>``, no token keys, no
+object poses), as a policy trained on such a dataset expects it:
+
+    lerobot-eval ... --env.type=actionflow --env.task=Stack-v0 --env.obs_mode=pixels \
+        --env.obs_layout=lerobot --env.cameras='[front,wrist]' --env.image_size=80
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot_actionflow import schema
 
 TASK_OPTIONS: dict[str, tuple[str, ...]] = {
-    "Lightbulb": ("socket_obs", "socket_pose"),
+    "Lightbulb": ("socket_obs", "socket_pose", "socket_fit"),
     "MugHanging": ("hanger_obs", "mug_yaw", "mask_after_grasp"),
 }
 """Env-config fields passed to ``gym.make`` for one task only (task name -> fields); None = the env's
@@ -37,7 +43,8 @@ def _task_spec(task: str):
 @EnvConfig.register_subclass("actionflow")
 @dataclass
 class ActionFlowEnvConfig(EnvConfig):
-    """A gym_actionflow task: token observations (+ wrist camera, + point cloud) and a 10-d pose action."""
+    """A gym_actionflow task: token observations (+ cameras, + point cloud), or the plain LeRobot layout
+    (state + cameras), and a 10-d pose action."""
 
     task: str | None = "StackThree-v0"
     fps: int = 20
@@ -45,7 +52,16 @@ class ActionFlowEnvConfig(EnvConfig):
     """Initial-state distribution: D0 / D1 (/ D2 for ThreePieceAssembly, Coffee, Threading), or train / test /
     scene_moved for MugHanging; None = the task's first (the registry's ``variants`` lists them)."""
     obs_mode: str = "state"
-    """``state`` (tokens) or ``pixels`` (tokens + wrist RGB)."""
+    """``state`` (no image) or ``pixels`` (adds the cameras: ``cameras``, default the wrist camera)."""
+    obs_layout: str | None = None
+    """``tokens`` (the env's default: token keys, ``agent_pos``, object poses) or ``lerobot`` (``agent_pos``
+    and the cameras only; needs ``obs_mode=pixels``)."""
+    cameras: list[str] | None = None
+    """With ``obs_mode=pixels``: the cameras, from ``front`` (static) and ``wrist``, e.g.
+    ``--env.cameras='[front,wrist]'``; None = the env's default, the wrist camera."""
+    image_size: int | None = None
+    """Side of the square camera images in pixels; None = the task's default (84, or 80 for Lightbulb and
+    MugHanging)."""
     hanger_obs: str | None = None
     """MugHanging only: ``pose`` or ``point_cloud``."""
     mug_yaw: str | None = None
@@ -56,6 +72,9 @@ class ActionFlowEnvConfig(EnvConfig):
     """Lightbulb only: ``pose`` (the env's default) or ``none`` (no socket token; needs obs_mode=pixels)."""
     socket_pose: str | None = None
     """Lightbulb only: ``any`` (the env's default), ``fixed`` (one socket pose, the paper's) or ``slight``."""
+    socket_fit: str | None = None
+    """Lightbulb only: ``strict`` (the env's default, 1.5 mm of clearance) or ``paper`` (2.5 mm, calibrated on
+    the paper's replay baseline: eval/results/lightbulb_fit.md)."""
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: dict(schema.FEATURES_MAP))
 
@@ -63,9 +82,11 @@ class ActionFlowEnvConfig(EnvConfig):
         spec = _task_spec(self.task)
         self.task = f"{spec.name}-v0"
         try:
-            self.variant = spec.kwargs(self.variant, self.obs_mode)["variant"]
+            self.variant = spec.kwargs(self.variant, self.obs_mode, self.obs_layout, self.cameras)["variant"]
         except ValueError as err:
             raise ValueError(f"--env.{err}") from None
+        if self.image_size is not None and (isinstance(self.image_size, bool) or self.image_size < 1):
+            raise ValueError(f"--env.image_size={self.image_size!r}; expected a positive number of pixels")
         for owner, names in TASK_OPTIONS.items():
             for name in names:
                 if getattr(self, name) is not None and spec.name != owner:
@@ -85,7 +106,9 @@ class ActionFlowEnvConfig(EnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         spec = _task_spec(self.task)
-        kwargs = spec.kwargs(self.variant, self.obs_mode)
+        kwargs = spec.kwargs(self.variant, self.obs_mode, self.obs_layout, self.cameras)
+        if self.image_size is not None:
+            kwargs["image_size"] = self.image_size
         for name in TASK_OPTIONS.get(spec.name, ()):
             if getattr(self, name) is not None:
                 kwargs[name] = getattr(self, name)

@@ -16,12 +16,17 @@ nothing else of ours (and LeRobot only inside the functions that build LeRobot's
 
 An env observation is a dict of arrays with the cameras nested under ``pixels``; "shapes" below are
 ``{flat env key: shape}`` with the cameras flattened to ``pixels/<cam>`` (:func:`observation_shapes`).
+
+Two layouts of these keys (the env's ``obs_layout``): ``tokens``, the token keys and ``agent_pos`` (+ cameras,
++ point cloud), and ``lerobot``, a plain LeRobot dataset's ``observation.state`` and
+``observation.images.<cam>`` only (none of :data:`TOKEN_KEYS`), which carries no object pose: a policy sees
+the objects through the cameras, placed by each camera's pose (the env's ``camera_poses``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -61,8 +66,17 @@ _ENV_KEYS: dict[str, tuple[str, str]] = {  # env key: (dataset / policy key, LeR
     "point_cloud": (POINT_CLOUD, "STATE"),
 }
 _NAMES = {"agent_pos": list(STATE_NAMES)}
-CAMERAS = ("wrist",)
-"""The cameras a gym_actionflow env can have (``obs_mode="pixels"``)."""
+CAMERAS = ("front", "wrist")
+"""The cameras a gym_actionflow env can have (``obs_mode="pixels"``, chosen by its ``cameras``): ``front``,
+static, and ``wrist``, on the hand (gym_actionflow's ``registry.CAMERAS``; this module imports nothing of
+ours)."""
+TOKEN_KEYS = ("token_poses", "token_features", "environment_state", "point_cloud")
+"""The env keys of the token layout that the LeRobot layout leaves out: tokens and object poses."""
+
+CAMERA_FRAMES = ("world", "eef")
+"""Where a camera's pose is given: ``world``, a static camera's world pose; ``eef``, a hand camera's fixed
+pose in the end-effector frame of ``observation.state`` (its world pose is the end-effector pose times it)."""
+CAMERA_CONVENTION = "MuJoCo's camera frame: looking along its -z axis, x the image's right, y its up"
 
 FEATURES_MAP: dict[str, str] = {
     ACTION: ACTION,
@@ -87,6 +101,14 @@ def policy_key(env_key: str) -> str:
 
 def _is_camera(env_key: str) -> bool:
     return env_key.startswith(f"{PIXELS}/")
+
+
+def obs_layout(shapes: Mapping[str, tuple[int, ...]]) -> str:
+    """``lerobot`` when the observation holds ``agent_pos`` and cameras only (no token key, no object pose),
+    else ``tokens``: which of the two layouts an env's or a dataset's shapes follow."""
+    if any(key in shapes for key in TOKEN_KEYS):
+        return "tokens"
+    return "lerobot" if any(_is_camera(key) for key in shapes) else "tokens"
 
 
 # ---------------------------------------------------------------------------- shapes and feature specs
@@ -152,9 +174,10 @@ def dataset_features(
 
     ``token_names`` (the env's ``token_names``: ``eef``, then its entities) and ``scalar_names`` (its task
     scalars) name the rows and columns of the token keys, so a dataset says which row is which object;
-    without them those keys have ``names: None``."""
+    without them those keys have ``names: None``. The LeRobot layout has no token keys: it ignores them, and
+    its features are ``observation.state``, ``observation.images.<cam>`` and ``action``."""
     names = dict(_NAMES)
-    if token_names is not None:
+    if token_names is not None and obs_layout(shapes) == "tokens":
         names |= _token_names(shapes, token_names, scalar_names)
     features = {}
     for env_key, shape in shapes.items():
@@ -165,6 +188,30 @@ def dataset_features(
         features[policy_key(env_key)] = spec
     features[ACTION] = {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)}
     return features
+
+
+def camera_info(
+    frame: str, pose: Sequence[float], quaternion: Sequence[float], fovy: float
+) -> dict[str, Any]:
+    """Where a camera was, as its dataset feature's ``info`` entries (``meta/info.json``; LeRobot keeps them
+    beside its own ``video.*`` entries): ``camera.frame`` (:data:`CAMERA_FRAMES`), ``camera.pose`` (the pose
+    vector ``POSE_LAYOUT`` of :data:`CAMERA_CONVENTION`'s frame), the same rotation as
+    ``camera.quaternion_wxyz`` (w, x, y, z), ``camera.fovy_degrees`` (vertical field of view: square pixels,
+    focal length (H / 2) / tan(fovy / 2) pixels, principal point at the centre) and ``camera.convention``.
+    Numbers are rounded to 1e-6 (a micrometre), which drops float32 digits and 1e-17 remainders of zeros."""
+    if frame not in CAMERA_FRAMES:
+        raise ValueError(f"camera frame {frame!r}; expected one of {CAMERA_FRAMES}")
+
+    def rounded(values: Sequence[float]) -> list[float]:
+        return [round(float(v), 6) + 0.0 for v in values]  # + 0.0: no negative zero
+
+    return {
+        "camera.frame": frame,
+        "camera.pose": rounded(pose),
+        "camera.quaternion_wxyz": rounded(quaternion),
+        "camera.fovy_degrees": float(fovy),
+        "camera.convention": CAMERA_CONVENTION,
+    }
 
 
 def env_features(shapes: Mapping[str, tuple[int, ...]]) -> dict[str, PolicyFeature]:

@@ -16,10 +16,13 @@ The simulation of one control step: IK on the rate-limited target -> joint targe
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import mujoco
 import numpy as np
 
-from gym_actionflow.robot import MAX_FINGER, PoseController, RobotRefs, add_panda
+from gym_actionflow.point_cloud import look_at_xyaxes
+from gym_actionflow.robot import MAX_FINGER, WRIST_CAMERA, PoseController, RobotRefs, add_panda
 from gym_actionflow.shell import CONTROL_HZ, TokenEnv
 from gym_actionflow.shell import POSITION_BOUND as POSITION_BOUND  # re-exported: tasks read it from here
 from gym_actionflow.shell import TOKEN_EEF as TOKEN_EEF  # re-exported
@@ -42,6 +45,14 @@ impedance 0.9-0.95) lets a light object sink in proportion to the force on it: t
 pushed it 4 cm into the table. A time constant of two physics steps (the stiffest stable one, as the finger
 pads') and impedance rising to 0.999 within 1 mm make the same press sink it about a millimetre, and resting
 objects a few micrometres (eval/results/envs_cpu.md). Impedance 0.99 let a pressed needle sink 4.8 mm."""
+FRONT_CAMERA_POS = (0.55, 0.0, 0.75)
+FRONT_CAMERA_TARGET = (-0.05, 0.0, 0.10)
+FRONT_CAMERA_FOVY = 45.0
+"""The static ``front`` camera of the observation (``cameras=("front", ...)``): in front of the robot and
+above the table, about 47 degrees down, looking at a point 10 cm above the table centre. Its view holds every
+task's objects over all the variants' layouts (Stack D1's +-0.2 m, MugHanging's hanger moved 0.3 m to a
+side), the arm above them and the robot's base at the top, with little background: at 80x80 a 4 cm cube is
+about 5 pixels wide. ``render()`` keeps its own wider view (``overview``)."""
 _HOME_SEED = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.0])
 
 
@@ -51,7 +62,8 @@ class ManipulationEnv(TokenEnv):
     variants = ("D0", "D1")
     workspace_low = WORKSPACE_LOW
     workspace_high = WORKSPACE_HIGH
-    render_camera = "front"
+    render_camera = "overview"
+    camera_names: ClassVar[dict[str, str]] = {"front": "front", "wrist": WRIST_CAMERA}
 
     def _initialize_simulation(self) -> None:
         spec = self._build_scene()
@@ -123,7 +135,13 @@ class ManipulationEnv(TokenEnv):
             friction=(1.0, 0.005, 0.0001),
         )
         world.add_light(pos=(0, 0, 2.0), dir=(0, 0, -1), diffuse=(0.6, 0.6, 0.6), castshadow=False)
-        world.add_camera(name="front", pos=(0.62, 0.0, 0.52), xyaxes=(0, 1, 0, -0.54, 0, 0.84), fovy=55.0)
+        world.add_camera(name="overview", pos=(0.62, 0.0, 0.52), xyaxes=(0, 1, 0, -0.54, 0, 0.84), fovy=55.0)
+        world.add_camera(
+            name="front",
+            pos=FRONT_CAMERA_POS,
+            xyaxes=look_at_xyaxes(FRONT_CAMERA_POS, FRONT_CAMERA_TARGET),
+            fovy=FRONT_CAMERA_FOVY,
+        )
         add_panda(spec, ROBOT_BASE)
         return spec
 
@@ -139,6 +157,10 @@ class ManipulationEnv(TokenEnv):
     # ------------------------------------------------------------------ helpers for tasks
     def body_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:
         return self.data.xpos[body_id].copy(), self.data.xmat[body_id].reshape(3, 3).copy()
+
+    def camera_frame(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        cam = self.model.camera(camera).id
+        return self.data.cam_xpos[cam].copy(), self.data.cam_xmat[cam].reshape(3, 3).copy()
 
     def set_free_pose(self, joint_name: str, pos: np.ndarray, quat: np.ndarray) -> None:
         adr = self.model.joint(joint_name).qposadr[0]

@@ -8,17 +8,64 @@ from __future__ import annotations
 import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import gymnasium as gym
 
 OBS_MODES = ("state", "pixels")
-"""``state``: token observations; ``pixels``: the same plus the wrist camera."""
+"""``state``: no image; ``pixels``: the observation adds the cameras (``cameras``, default the wrist one)."""
+OBS_LAYOUTS = ("tokens", "lerobot")
+"""The observation's keys. ``tokens``: the token observation (``token_poses``, ``token_features``,
+``agent_pos``, ``environment_state``, a task's extra keys) plus the cameras; ``lerobot``: a plain LeRobot
+layout, ``agent_pos`` and the cameras only (no token keys, no object poses), with ``obs_mode="pixels"``."""
+CAMERAS = ("front", "wrist")
+"""The cameras an env can render under ``pixels/<name>``: ``front``, static, looking at the workspace from the
+front and above; ``wrist``, on the hand (the only one before cameras could be chosen)."""
+DEFAULT_CAMERAS = ("wrist",)
+"""The cameras of ``obs_mode="pixels"`` when ``cameras`` is not given."""
 
 
 def check_choice(name: str, value: object, choices: Sequence, context: str = "") -> None:
     """The one check of a keyword against its choices: ``variant='D7'; expected one of ('D0', 'D1')``."""
     if value not in choices:
         raise ValueError(f"{name}={value!r}; expected one of {tuple(choices)}{context}")
+
+
+def check_observation(
+    obs_mode: str, obs_layout: str = "tokens", cameras: Sequence[str] | None = None
+) -> tuple[str, ...]:
+    """The one check of the observation keywords together; returns the cameras the observation renders (none
+    with ``obs_mode="state"``). Cameras are named only with ``obs_mode="pixels"`` (they would not be
+    rendered otherwise), at least one, each once; the LeRobot layout needs a camera, its only view of the
+    objects."""
+    check_choice("obs_mode", obs_mode, OBS_MODES, " ('pixels' adds the cameras)")
+    check_choice("obs_layout", obs_layout, OBS_LAYOUTS, " ('lerobot': agent_pos and the cameras only)")
+    if cameras is None:
+        chosen = DEFAULT_CAMERAS if obs_mode == "pixels" else ()
+    else:
+        if isinstance(cameras, str) or not all(isinstance(c, str) for c in cameras):
+            raise ValueError(f"cameras={cameras!r}; expected a sequence of camera names from {CAMERAS}")
+        chosen = tuple(cameras)
+        for camera in chosen:
+            if camera not in CAMERAS:
+                raise ValueError(f"cameras={chosen!r} names {camera!r}; expected names from {CAMERAS}")
+        if len(set(chosen)) != len(chosen):
+            raise ValueError(f"cameras={chosen!r} names a camera twice; expected each at most once")
+        if obs_mode != "pixels":
+            raise ValueError(
+                f"cameras={chosen!r} with obs_mode={obs_mode!r}: cameras are rendered with obs_mode='pixels' "
+                "only; pass obs_mode='pixels' (or leave cameras out)"
+            )
+        if not chosen:
+            raise ValueError(
+                f"cameras=() with obs_mode='pixels'; expected at least one of {CAMERAS} (or obs_mode='state')"
+            )
+    if obs_layout == "lerobot" and obs_mode != "pixels":
+        raise ValueError(
+            f"obs_layout='lerobot' with obs_mode={obs_mode!r}: the LeRobot layout is agent_pos plus the "
+            "cameras, its only view of the objects; pass obs_mode='pixels' (and cameras, default ('wrist',))"
+        )
+    return chosen
 
 
 @dataclass(frozen=True)
@@ -39,15 +86,29 @@ class TaskSpec:
     def env_id(self) -> str:
         return f"gym_actionflow/{self.name}-v0"
 
-    def kwargs(self, variant: str | None = None, obs_mode: str | None = None) -> dict[str, str]:
-        """``gym.make`` keyword arguments selecting ``variant`` (default: the first) and ``obs_mode``
-        (default: the env's, ``state``); a value the task does not have is a ValueError naming the choices."""
+    def kwargs(
+        self,
+        variant: str | None = None,
+        obs_mode: str | None = None,
+        obs_layout: str | None = None,
+        cameras: Sequence[str] | None = None,
+    ) -> dict[str, Any]:
+        """``gym.make`` keyword arguments selecting ``variant`` (default: the first), ``obs_mode``,
+        ``obs_layout`` and ``cameras`` (default: the env's: ``state``, ``tokens``, the wrist camera with
+        pixels); a value the task does not have, or a combination the env refuses, is a ValueError naming the
+        keyword."""
         variant = self.variants[0] if variant is None else variant
         check_choice("variant", variant, self.variants, f" for {self.name}")
-        if obs_mode is None:
-            return {"variant": variant}
-        check_choice("obs_mode", obs_mode, OBS_MODES)
-        return {"variant": variant, "obs_mode": obs_mode}
+        kwargs: dict[str, Any] = {"variant": variant}
+        if obs_mode is None and obs_layout is None and cameras is None:
+            return kwargs
+        check_observation("state" if obs_mode is None else obs_mode, obs_layout or "tokens", cameras)
+        given = {
+            "obs_mode": obs_mode,
+            "obs_layout": obs_layout,
+            "cameras": None if cameras is None else tuple(cameras),
+        }
+        return kwargs | {key: value for key, value in given.items() if value is not None}
 
 
 def find_task(name: str) -> TaskSpec:

@@ -13,8 +13,10 @@ written once, here, and cannot drift between the two. A simulator fills (as robo
   settled, the command state back at the start pose;
 * ``_step_simulation(pos, rot, grip)``: track the (clipped, rate-limited) TCP target and gripper command for
   one control step;
-* ``tcp_pose()``, ``gripper_opening()``, ``body_pose(body_id)``, ``is_grasped(geoms)``: read the simulator in
-  the suite's frame (table top at z = 0).
+* ``tcp_pose()``, ``gripper_opening()``, ``body_pose(body_id)``, ``camera_frame(camera)``,
+  ``is_grasped(geoms)``: read the simulator in the suite's frame (table top at z = 0);
+* ``camera_names``: which simulator camera each of the suite's cameras is (``front``, static, and ``wrist``,
+  on the hand: :data:`gym_actionflow.registry.CAMERAS`).
 
 A task fills ``_entity_poses()`` (the world pose of each non-EEF token, in ``entity_names`` order) and
 ``_check_success()`` (free of side effects), and may fill the optional hooks (default: nothing):
@@ -26,9 +28,15 @@ A task fills ``_entity_poses()`` (the world pose of each non-EEF token, in ``ent
   a counter the success rule reads);
 * ``_show_success(success)``: show the task state in the scene before the observation renders (a lit bulb);
 * ``_extra_observation_spaces()`` / ``_extra_observation()``: observation keys beyond the tokens (a point
-  cloud);
-* ``_wrist_image()``: the wrist image of ``obs_mode="pixels"`` (default: as rendered; a task may mask it,
-  ``_geom_ids`` tells which geom each pixel shows).
+  cloud; none in the LeRobot layout, which refuses an env whose options add one);
+* ``_camera_image(camera)``: a camera's image of ``obs_mode="pixels"`` (default: as rendered; a task may mask
+  it, ``_geom_ids`` tells which geom each pixel shows).
+
+The observation's keys follow ``obs_layout`` (:data:`gym_actionflow.registry.OBS_LAYOUTS`): ``tokens`` (the
+default) is the token observation, plus ``pixels/<camera>`` for the ``cameras`` chosen with
+``obs_mode="pixels"`` (default: the wrist camera); ``lerobot`` is ``agent_pos`` and the cameras only, a plain
+LeRobot dataset's ``observation.state`` and ``observation.images.*``. :attr:`TokenEnv.camera_poses` says
+where each camera is, for a policy that places images in space.
 
 One control step: action -> clip, rate limit -> ``_step_simulation`` -> ``_after_physics`` -> success
 (computed once) -> ``_show_success`` -> observation. A reset: ``_reset_simulation`` -> ``_after_reset`` ->
@@ -39,7 +47,8 @@ from __future__ import annotations
 
 import atexit
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -47,9 +56,16 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from gym_actionflow.geometry import axis_angle_matrix, gram_schmidt, pose9, rotation_angle, rotation_log
-from gym_actionflow.registry import OBS_MODES, check_choice
-from gym_actionflow.robot import MAX_FINGER, WRIST_CAMERA, PoseController
+from gym_actionflow.geometry import (
+    axis_angle_matrix,
+    gram_schmidt,
+    matrix_to_quat,
+    pose9,
+    rotation_angle,
+    rotation_log,
+)
+from gym_actionflow.registry import CAMERAS, check_choice, check_observation
+from gym_actionflow.robot import MAX_FINGER, PoseController
 
 CONTROL_HZ = 20
 MAX_STEP_POS = 0.03
@@ -75,37 +91,68 @@ def _close_renderers(renderers: dict[str, mujoco.Renderer]) -> None:
 # through these functions: the same observation keys and bounds, the same action and its limits.
 
 
+_POSE_HIGH = np.array([POSITION_BOUND] * 3 + [1.0] * 6, dtype=np.float32)
+
+
+def _state_space() -> spaces.Box:
+    """``agent_pos``: the TCP pose (9) and the gripper opening (0 .. 2 * MAX_FINGER m)."""
+    high = np.concatenate([_POSE_HIGH, [2 * MAX_FINGER]]).astype(np.float32)
+    low = np.concatenate([-_POSE_HIGH, [0.0]]).astype(np.float32)
+    return spaces.Box(low, high, dtype=np.float32)
+
+
+def _camera_spaces(cameras: Mapping[str, tuple[int, int, int]]) -> dict[str, spaces.Space]:
+    """``pixels``: one (H, W, 3) uint8 image per camera, or no key without cameras."""
+    if not cameras:
+        return {}
+    return {
+        "pixels": spaces.Dict(
+            {name: spaces.Box(0, 255, shape, dtype=np.uint8) for name, shape in cameras.items()}
+        )
+    }
+
+
 def token_observation_space(
     n_tokens: int,
     n_scalars: int,
     extra: dict[str, spaces.Space] | None = None,
-    pixels: tuple[int, int, int] | None = None,
+    cameras: Mapping[str, tuple[int, int, int]] | None = None,
 ) -> spaces.Dict:
     """``token_poses`` (N, 9), ``token_features`` (N, N + 1 + n_scalars), ``agent_pos`` (10,),
-    ``environment_state`` (9 (N - 1),), the task's ``extra`` keys and, with ``pixels`` (H, W, 3), the wrist
-    image under ``pixels/wrist``."""
+    ``environment_state`` (9 (N - 1),), the task's ``extra`` keys and each of ``cameras`` (name: (H, W, 3))
+    under ``pixels/<name>``."""
     n = n_tokens
-    pose_high = np.array([POSITION_BOUND] * 3 + [1.0] * 6, dtype=np.float32)
     feat_high = np.concatenate([np.ones(n), [2 * MAX_FINGER], np.full(n_scalars, SCALAR_BOUND)])
     feat_low = np.concatenate([np.zeros(n + 1), np.full(n_scalars, -SCALAR_BOUND)])
-    state_high = np.concatenate([pose_high, [2 * MAX_FINGER]]).astype(np.float32)
-    state_low = np.concatenate([-pose_high, [0.0]]).astype(np.float32)
-    obs = {
-        "token_poses": spaces.Box(-np.tile(pose_high, (n, 1)), np.tile(pose_high, (n, 1)), dtype=np.float32),
-        "token_features": spaces.Box(
-            np.tile(feat_low, (n, 1)).astype(np.float32),
-            np.tile(feat_high, (n, 1)).astype(np.float32),
-            dtype=np.float32,
-        ),
-        "agent_pos": spaces.Box(state_low, state_high, dtype=np.float32),
-        "environment_state": spaces.Box(
-            -np.tile(pose_high, n - 1), np.tile(pose_high, n - 1), dtype=np.float32
-        ),
-        **(extra or {}),
-    }
-    if pixels is not None:
-        obs["pixels"] = spaces.Dict({"wrist": spaces.Box(0, 255, pixels, dtype=np.uint8)})
-    return spaces.Dict(obs)
+    return spaces.Dict(
+        {
+            "token_poses": spaces.Box(
+                -np.tile(_POSE_HIGH, (n, 1)), np.tile(_POSE_HIGH, (n, 1)), dtype=np.float32
+            ),
+            "token_features": spaces.Box(
+                np.tile(feat_low, (n, 1)).astype(np.float32),
+                np.tile(feat_high, (n, 1)).astype(np.float32),
+                dtype=np.float32,
+            ),
+            "agent_pos": _state_space(),
+            "environment_state": spaces.Box(
+                -np.tile(_POSE_HIGH, n - 1), np.tile(_POSE_HIGH, n - 1), dtype=np.float32
+            ),
+            **(extra or {}),
+            **_camera_spaces(cameras or {}),
+        }
+    )
+
+
+def lerobot_observation_space(cameras: Mapping[str, tuple[int, int, int]]) -> spaces.Dict:
+    """The LeRobot layout: ``agent_pos`` (10,) and each of ``cameras`` (name: (H, W, 3)) under
+    ``pixels/<name>``; no token keys, no object poses."""
+    return spaces.Dict({"agent_pos": _state_space(), **_camera_spaces(cameras)})
+
+
+def agent_pos(tcp: tuple[np.ndarray, np.ndarray], opening: float) -> np.ndarray:
+    """(10,) float32: the TCP pose vector and the gripper opening, the same numbers in every layout."""
+    return np.concatenate([pose9(*tcp).astype(np.float32), [opening]]).astype(np.float32)
 
 
 def token_observation(
@@ -129,7 +176,7 @@ def token_observation(
     return {
         "token_poses": poses,
         "token_features": feats,
-        "agent_pos": np.concatenate([poses[0], [opening]]).astype(np.float32),
+        "agent_pos": agent_pos(tcp, opening),
         "environment_state": poses[1:].reshape(-1).copy(),
     }
 
@@ -185,6 +232,46 @@ def rate_limit(
     return pos, rot
 
 
+@dataclass(frozen=True, eq=False)
+class CameraPose:
+    """Where a camera is, for a policy that places each image where it was taken.
+
+    ``frame="world"``: a static camera; ``position`` / ``rotation`` are its pose in the world frame (table top
+    at z = 0). ``frame="eef"``: a camera on the hand; they are its fixed pose in the TCP frame that
+    ``agent_pos`` reports (z out of the fingers, which close along y), so its world pose is the TCP pose times
+    this one (:meth:`world_pose`).
+
+    The pose is that of MuJoCo's camera frame: the camera looks along its -z axis, x points to the image's
+    right and y to the image's top (OpenGL's convention; OpenCV's camera frame, x right, y down, z forward,
+    is this one turned half a turn about its x axis). ``fovy`` is the vertical field of view in degrees: an
+    (H, W) image has square pixels, a focal length of (H / 2) / tan(fovy / 2) pixels and its principal point
+    at the centre.
+    """
+
+    frame: str
+    """``world`` (static camera) or ``eef`` (on the hand, relative to the TCP)."""
+    position: np.ndarray
+    """(3,) metres."""
+    rotation: np.ndarray
+    """(3, 3): the camera's axes (columns) in the reference frame."""
+    fovy: float
+
+    def pose9(self) -> np.ndarray:
+        """The pose vector ``[x, y, z, r00, r10, r20, r01, r11, r21]`` (the suite's convention)."""
+        return pose9(self.position, self.rotation)
+
+    def quaternion(self) -> np.ndarray:
+        """The rotation as a unit quaternion (w, x, y, z), for configs that spell a pose that way."""
+        return matrix_to_quat(self.rotation)
+
+    def world_pose(self, tcp: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's world (position, rotation) when the TCP is at ``tcp`` (ignored by a world camera)."""
+        if self.frame == "world":
+            return self.position.copy(), self.rotation.copy()
+        pos, rot = tcp
+        return pos + rot @ self.position, rot @ self.rotation
+
+
 class TokenEnv(gym.Env):
     """A Panda task behind the token observation and the absolute pose action (see the module docstring for
     the hooks a simulator and a task fill)."""
@@ -201,9 +288,11 @@ class TokenEnv(gym.Env):
     workspace_high: ClassVar[np.ndarray]
     """Action targets are clipped to this box (m, the suite's world frame: table top at z = 0)."""
     render_camera: ClassVar[str]
-    """The camera of ``render()``."""
-    wrist_camera: ClassVar[str] = WRIST_CAMERA
-    """The camera of the ``pixels/wrist`` observation."""
+    """The simulator camera of ``render()``."""
+    camera_names: ClassVar[dict[str, str]]
+    """The simulator camera of each of the suite's cameras (``pixels/<name>``): every name of
+    :data:`gym_actionflow.registry.CAMERAS`. A camera on the world body is static (``frame="world"`` in
+    :attr:`camera_poses`); any other must sit on the hand, rigidly with the TCP (``frame="eef"``)."""
     _scene_option: mujoco.MjvOption | None = None
     """What the renderers draw (None: MuJoCo's defaults)."""
 
@@ -220,14 +309,18 @@ class TokenEnv(gym.Env):
         terminate_on_success: bool = True,
         image_size: int | None = None,
         render_size: tuple[int, int] = (240, 320),
+        obs_layout: str = "tokens",
+        cameras: Sequence[str] | None = None,
     ) -> None:
         variant = self.variants[0] if variant is None else variant
         check_choice("variant", variant, self.variants, f" for {type(self).__name__}")
-        check_choice("obs_mode", obs_mode, OBS_MODES, " ('pixels' = state + wrist camera)")
+        self.cameras = check_observation(obs_mode, obs_layout, cameras)
+        """The cameras of the observation, in the order given (none with ``obs_mode="state"``)."""
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}; only 'rgb_array' (or None) is supported")
         self.variant = variant
         self.obs_mode = obs_mode
+        self.obs_layout = obs_layout
         self.render_mode = render_mode
         self.terminate_on_success = terminate_on_success
         self.image_size = int(self.default_image_size if image_size is None else image_size)
@@ -236,15 +329,24 @@ class TokenEnv(gym.Env):
         self._exit_hook: Callable[[], None] | None = None
 
         self._initialize_simulation()
+        self._camera_poses = self._measure_camera_poses()
 
         self.feature_dim = self.n_tokens + 1 + len(self.scalar_names)
-        self.observation_space = token_observation_space(
-            self.n_tokens, len(self.scalar_names), self._extra_observation_spaces(), self._pixel_shape()
-        )
+        images = {name: (self.image_size, self.image_size, 3) for name in self.cameras}
+        extra = self._extra_observation_spaces()
+        if obs_layout == "lerobot" and extra:
+            raise ValueError(
+                f"obs_layout='lerobot' observes agent_pos and the cameras only, but this "
+                f"{type(self).__name__}'s options add {sorted(extra)} (e.g. hanger_obs='point_cloud'); leave "
+                "those options at their defaults, or use obs_layout='tokens'"
+            )
+        if obs_layout == "lerobot":
+            self.observation_space = lerobot_observation_space(images)
+        else:
+            self.observation_space = token_observation_space(
+                self.n_tokens, len(self.scalar_names), extra, images
+            )
         self.action_space = pose_action_space(self.workspace_low, self.workspace_high)
-
-    def _pixel_shape(self) -> tuple[int, int, int] | None:
-        return (self.image_size, self.image_size, 3) if self.obs_mode == "pixels" else None
 
     # ------------------------------------------------------------------ simulator hooks
     def _initialize_simulation(self) -> None:
@@ -266,6 +368,11 @@ class TokenEnv(gym.Env):
 
     def body_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:
         """World pose (position, rotation matrix) of a body."""
+        raise NotImplementedError
+
+    def camera_frame(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        """World pose (position, rotation matrix) of a simulator camera's frame (MuJoCo's: looking along -z,
+        y up) in the current state."""
         raise NotImplementedError
 
     def is_grasped(self, object_geoms: set[int]) -> bool:
@@ -300,9 +407,10 @@ class TokenEnv(gym.Env):
         """Values of the keys of :meth:`_extra_observation_spaces` for the current state."""
         return {}
 
-    def _wrist_image(self) -> np.ndarray:
-        """The wrist image of the observation, (image_size, image_size, 3) uint8 (default: as rendered)."""
-        return self._render_camera(self.wrist_camera, self.image_size, self.image_size)
+    def _camera_image(self, camera: str) -> np.ndarray:
+        """The image of one of the suite's cameras (``front``, ``wrist``) in the observation, (image_size,
+        image_size, 3) uint8 (default: as rendered)."""
+        return self._render_camera(self.camera_names[camera], self.image_size, self.image_size)
 
     # ------------------------------------------------------------------ helpers for tasks
     @property
@@ -311,6 +419,30 @@ class TokenEnv(gym.Env):
 
         Vectorised evaluators (LeRobot's ``lerobot-eval``) read both attributes from every sub-env."""
         return type(self).__name__.removesuffix("Env")
+
+    @property
+    def camera_poses(self) -> dict[str, CameraPose]:
+        """Where each of the suite's cameras is (every name of :data:`gym_actionflow.registry.CAMERAS`, chosen
+        or not): the static ``front`` camera's world pose, the ``wrist`` camera's fixed pose in the TCP frame
+        (see :class:`CameraPose` for the frames and MuJoCo's camera convention). Constant for an env."""
+        return dict(self._camera_poses)
+
+    def _measure_camera_poses(self) -> dict[str, CameraPose]:
+        """Read the cameras' poses from the simulator at initialisation, its kinematics computed for the
+        model's initial state (a reset starts from scratch, so this changes no episode). A hand camera's pose
+        relative to the TCP is the same in every arm pose: the tests check it at several."""
+        mujoco.mj_forward(self.model, self.data)
+        poses = {}
+        tcp_pos, tcp_rot = self.tcp_pose()
+        for name in CAMERAS:
+            cam = self.model.camera(self.camera_names[name])
+            pos, rot = self.camera_frame(cam.name)
+            if self.model.cam_bodyid[cam.id] == 0:
+                poses[name] = CameraPose("world", pos, rot, float(cam.fovy[0]))
+            else:
+                offset = (tcp_rot.T @ (pos - tcp_pos), tcp_rot.T @ rot)
+                poses[name] = CameraPose("eef", *offset, float(cam.fovy[0]))
+        return poses
 
     @property
     def n_tokens(self) -> int:
@@ -368,12 +500,15 @@ class TokenEnv(gym.Env):
         return bool(self._check_success())
 
     def _observation(self) -> dict[str, Any]:
-        obs = token_observation(
-            self.tcp_pose(), self._entity_poses(), self.gripper_opening(), self._task_scalars()
-        )
-        obs.update(self._extra_observation())
-        if self.obs_mode == "pixels":
-            obs["pixels"] = {"wrist": self._wrist_image()}
+        if self.obs_layout == "lerobot":
+            obs = {"agent_pos": agent_pos(self.tcp_pose(), self.gripper_opening())}
+        else:
+            obs = token_observation(
+                self.tcp_pose(), self._entity_poses(), self.gripper_opening(), self._task_scalars()
+            )
+            obs.update(self._extra_observation())
+        if self.cameras:
+            obs["pixels"] = {name: self._camera_image(name) for name in self.cameras}
         return obs
 
     # ------------------------------------------------------------------ rendering

@@ -318,6 +318,11 @@ class MugHangingEnv(ManipulationEnv):
                 f"mask_after_grasp=True with obs_mode={self.obs_mode!r}: the mask applies to the wrist "
                 "image; pass obs_mode='pixels' (or mask_after_grasp=False)"
             )
+        if self.mask_after_grasp and "wrist" not in self.cameras:
+            raise ValueError(
+                f"mask_after_grasp=True with cameras={self.cameras!r}: the mask applies to the wrist image; "
+                "add 'wrist' to cameras (or mask_after_grasp=False)"
+            )
 
     @property
     def layout(self) -> str:
@@ -424,9 +429,9 @@ class MugHangingEnv(ManipulationEnv):
         ids = self._geom_ids(WRIST_CAMERA, self.image_size, self.image_size)
         return np.isin(ids, self.mug_geom_ids)
 
-    def _wrist_image(self) -> np.ndarray:
-        image = super()._wrist_image()
-        if self.mask_after_grasp and self.mug_held():
+    def _camera_image(self, camera: str) -> np.ndarray:
+        image = super()._camera_image(camera)
+        if camera == "wrist" and self.mask_after_grasp and self.mug_held():
             image[~self.mug_mask()] = 0  # [H, W, 3]: everything but the mug black
         return image
 

@@ -4,7 +4,8 @@ robosuite simulates (its Panda, its default gripper, its objects, its success ch
 translates, so that these tasks speak the same token contract as every other gym_actionflow task:
 
 * the observation: ``token_poses`` / ``token_features`` (token 0 the TCP, then one token per object),
-  ``agent_pos``, ``environment_state`` and, with ``obs_mode="pixels"``, the wrist camera;
+  ``agent_pos``, ``environment_state`` and, with ``obs_mode="pixels"``, the cameras: ``wrist`` is robosuite's
+  ``robot0_eye_in_hand``, ``front`` its ``agentview`` (robomimic's static camera);
 * the action: the absolute TCP pose (position + two rotation columns) and a gripper command, rate-limited like
   the other tasks and tracked by robosuite's operational-space controller (``OSC_POSE``) in absolute mode, in
   the world frame.
@@ -22,6 +23,7 @@ robosuite 1.5.2 pins ``mink==0.0.5`` (``numpy<2``), which LeRobot cannot share, 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import mujoco
@@ -83,7 +85,7 @@ class RobosuiteTaskEnv(TokenEnv):
     workspace_high: ClassVar[np.ndarray] = np.array([0.35, 0.45, 0.6])
     """Action targets are clipped to this box (m, our frame: table top at z = 0)."""
     render_camera = "agentview"
-    wrist_camera = "robot0_eye_in_hand"
+    camera_names: ClassVar[dict[str, str]] = {"front": "agentview", "wrist": "robot0_eye_in_hand"}
 
     def __init__(
         self,
@@ -95,6 +97,8 @@ class RobosuiteTaskEnv(TokenEnv):
         render_size: tuple[int, int] = (240, 320),
         controller: str = "ik",
         controller_kp: float | None = None,
+        obs_layout: str = "tokens",
+        cameras: Sequence[str] | None = None,
     ) -> None:
         check_choice("controller", controller, CONTROLLERS)
         controller_kp = DEFAULT_KP[controller] if controller_kp is None else float(controller_kp)
@@ -102,7 +106,9 @@ class RobosuiteTaskEnv(TokenEnv):
             raise ValueError(f"controller_kp={controller_kp}; expected a positive stiffness")
         self.controller_name = controller
         self.controller_kp = controller_kp
-        super().__init__(variant, obs_mode, render_mode, terminate_on_success, image_size, render_size)
+        super().__init__(
+            variant, obs_mode, render_mode, terminate_on_success, image_size, render_size, obs_layout, cameras
+        )
 
     # ------------------------------------------------------------------ simulator hooks
     def _initialize_simulation(self) -> None:
@@ -216,6 +222,10 @@ class RobosuiteTaskEnv(TokenEnv):
         return self._to_ours(self.data.site_xpos[site_id].copy()), self.data.site_xmat[site_id].reshape(
             3, 3
         ).copy()
+
+    def camera_frame(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        cam = self.model.camera(camera).id
+        return self._to_ours(self.data.cam_xpos[cam].copy()), self.data.cam_xmat[cam].reshape(3, 3).copy()
 
     def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
         pos, rot = self.site_pose(self._site)

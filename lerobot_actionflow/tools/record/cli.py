@@ -5,6 +5,7 @@
     actionflow-record datasets/stack_three_d0_50.toml --push-to-hub you/stack_three_d0_50
 
     actionflow-record datasets/stack_d0_200.toml --workers 3                  # simulate in 3 processes
+    actionflow-record datasets/stack_d0_lerobot_100.toml                      # LeRobot layout, 2 cameras
     actionflow-record push ~/.cache/huggingface/lerobot/actionflow/stack_d0_200 --to you/stack_d0_200
 
 Only successful expert episodes are kept; failures are counted and reported. Seeds are tried in order from
@@ -38,7 +39,7 @@ from lerobot_actionflow.tools.record.recorder import record
 PROG = "actionflow-record"
 FLAGS = {
     "task": "--task", "variant": "--variant", "episodes": "--episodes", "seed": "--seed", "noise": "--noise",
-    "obs_mode": "--obs-mode", "repo_id": "--repo-id",
+    "obs_mode": "--obs-mode", "obs_layout": "--obs-layout", "cameras": "--cameras", "repo_id": "--repo-id",
 }  # fmt: skip
 """Recipe field -> the flag that sets it, to name the flag in an error about its value."""
 INPUT_ERRORS = (ValueError, FileNotFoundError, FileExistsError, RuntimeError)
@@ -92,7 +93,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, help="successful episodes to keep (>= 1)")
     parser.add_argument("--seed", type=int, help="first seed (>= 0, default 0)")
     parser.add_argument("--noise", type=float, help="expert noise (finite, >= 0; default 1)")
-    parser.add_argument("--obs-mode", choices=("state", "pixels"), help="pixels adds the wrist camera")
+    parser.add_argument("--obs-mode", choices=("state", "pixels"), help="pixels adds the cameras")
+    parser.add_argument(
+        "--obs-layout", choices=("tokens", "lerobot"),
+        help="tokens (default: token keys, observation.state, object poses) or lerobot (observation.state "
+        "and observation.images.* only, a plain LeRobot dataset; needs --obs-mode pixels)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--cameras", nargs="+", metavar="CAMERA",
+        help="with --obs-mode pixels: the cameras, from front (static) and wrist (default: wrist)",
+    )  # fmt: skip
     parser.add_argument(
         "--env-kwarg", action="append", type=_parse_env_kwarg, default=[], metavar="KEY=VALUE",
         help="extra gym.make keyword, repeatable (e.g. hanger_obs=point_cloud)",

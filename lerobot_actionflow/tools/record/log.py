@@ -49,7 +49,12 @@ class RecordingLog:
         return cls(**data)
 
 
+_ADDED_FIELDS = {"obs_layout": "tokens", "cameras": None}
+"""Recipe fields added after the first recordings, with the value an older log (which lacks them) meant."""
+
+
 def same_recording(a: dict, b: dict) -> list[str]:
     """What differs between two logged recipes that a resume must not mix (empty: the same recording)."""
-    keys = ("task", "variant", "seed", "noise", "obs_mode", "env_kwargs", "repo_id")
+    keys = ("task", "variant", "seed", "noise", "obs_mode", *_ADDED_FIELDS, "env_kwargs", "repo_id")
+    a, b = _ADDED_FIELDS | a, _ADDED_FIELDS | b
     return [f"{k}: {a.get(k)!r} on disk vs {b.get(k)!r} now" for k in keys if a.get(k) != b.get(k)]

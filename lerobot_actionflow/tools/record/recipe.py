@@ -41,7 +41,13 @@ class Recipe:
     noise: float = 1.0
     """Expert noise (0: deterministic waypoints; 1: the suite's standard demonstration noise)."""
     obs_mode: str = "state"
-    """``state`` (tokens only) or ``pixels`` (adds the wrist camera, stored as video)."""
+    """``state`` (no image) or ``pixels`` (adds the cameras, stored as video)."""
+    obs_layout: str = "tokens"
+    """``tokens`` (token keys, ``observation.state``, object poses) or ``lerobot`` (``observation.state`` and
+    ``observation.images.*`` only: a plain LeRobot dataset; needs ``obs_mode = "pixels"``)."""
+    cameras: list[str] | None = None
+    """With ``obs_mode = "pixels"``: the cameras, from ``front`` (static) and ``wrist``; None = the wrist
+    camera."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     """Further ``gym.make`` keyword arguments (e.g. ``hanger_obs = "point_cloud"``)."""
 
@@ -57,6 +63,10 @@ class Recipe:
         args += ["--episodes", str(self.episodes), "--seed", str(self.seed), "--noise", f"{self.noise:g}"]
         if self.obs_mode != "state":
             args += ["--obs-mode", self.obs_mode]
+        if self.obs_layout != "tokens":
+            args += ["--obs-layout", self.obs_layout]
+        if self.cameras is not None:
+            args += ["--cameras", *self.cameras]
         for key, value in self.env_kwargs.items():
             args += ["--env-kwarg", f"{key}={value}"]
         return shlex.join([*args, "--repo-id", self.repo_id])
@@ -80,6 +90,10 @@ def env_keywords(env_class: type) -> set[str] | None:
     return None
 
 
+OWN_FIELDS = ("variant", "obs_mode", "obs_layout", "cameras")
+"""Env keywords that are recipe fields of their own, never ``env_kwargs``."""
+
+
 def _check_env_kwargs(task, env_kwargs: object, label: Label) -> None:
     from gym_actionflow.registry import load
 
@@ -91,11 +105,11 @@ def _check_env_kwargs(task, env_kwargs: object, label: Label) -> None:
     accepted = env_keywords(load(task.entry_point)) if env_kwargs else None
     for key in env_kwargs:
         where = label(f"env_kwargs.{key}")
-        if key in ("variant", "obs_mode"):
+        if key in OWN_FIELDS:
             flag = "--" + key.replace("_", "-")
             raise ValueError(f"{where}: {key} is a field of its own; give it as {key} ({flag})")
         if accepted is not None and key not in accepted:
-            options = ", ".join(sorted(accepted - {"variant", "obs_mode"}))
+            options = ", ".join(sorted(accepted - set(OWN_FIELDS)))
             raise ValueError(
                 f"{where}: {task.env_id} takes no keyword {key!r}; expected one of its keywords: {options}"
             )
@@ -104,10 +118,11 @@ def _check_env_kwargs(task, env_kwargs: object, label: Label) -> None:
 def check_fields(values: Mapping[str, Any], label: Label = str) -> None:
     """Check a recipe's fields (those present in ``values``): types strict (``True`` is not a count, 2.7
     is not an integer), numbers finite and in range, the task known, the variant and obs mode one of the
-    task's, the env keywords ones the task's env takes. A ValueError names ``label(field)``, the value seen
-    and what was expected."""
+    task's, the observation layout and cameras ones the env has and takes together with the obs mode (a field
+    left out counts as its default), the env keywords ones the task's env takes. A ValueError names
+    ``label(field)``, the value seen and what was expected."""
     from gym_actionflow import find_task
-    from gym_actionflow.registry import OBS_MODES
+    from gym_actionflow.registry import CAMERAS, OBS_LAYOUTS, OBS_MODES, check_observation
     from huggingface_hub.utils import validate_repo_id
 
     def fail(key: str, expected: str) -> None:
@@ -133,7 +148,23 @@ def check_fields(values: Mapping[str, Any], label: Label = str) -> None:
         if not (_is_int(noise) or isinstance(noise, float)) or not math.isfinite(noise) or noise < 0:
             fail("noise", "a finite number >= 0 (0: deterministic expert, 1: the standard noise)")
     if "obs_mode" in values and values["obs_mode"] not in OBS_MODES:
-        fail("obs_mode", f"one of {OBS_MODES} ('pixels' adds the wrist camera)")
+        fail("obs_mode", f"one of {OBS_MODES} ('pixels' adds the cameras)")
+    if "obs_layout" in values and values["obs_layout"] not in OBS_LAYOUTS:
+        fail("obs_layout", f"one of {OBS_LAYOUTS} ('lerobot': observation.state and the cameras only)")
+    cameras = values.get("cameras")
+    if cameras is not None and (
+        not isinstance(cameras, list | tuple)
+        or not cameras
+        or not all(isinstance(c, str) and c in CAMERAS for c in cameras)
+        or len(set(cameras)) != len(cameras)
+    ):
+        fail("cameras", f"a list of distinct camera names from {CAMERAS}, e.g. ['front', 'wrist']")
+    if {"obs_mode", "obs_layout", "cameras"} & set(values):
+        try:
+            check_observation(values.get("obs_mode", "state"), values.get("obs_layout", "tokens"), cameras)
+        except ValueError as err:  # a combination: named by the field that asks for more than the obs mode
+            key = "cameras" if str(err).startswith("cameras") or "obs_layout" not in values else "obs_layout"
+            raise ValueError(f"{label(key)}: {err}") from None
     if "repo_id" in values:
         try:
             validate_repo_id(values["repo_id"])

@@ -79,13 +79,21 @@ def _restore(root: Path, log: RecordingLog) -> list[int]:
 
 def _features(env) -> dict[str, dict]:
     """The dataset's features: the env's observation keys through the schema, the token rows named by the
-    env's ``token_names`` (and the feature columns by its ``scalar_names``) where it has them."""
+    env's ``token_names`` (and the feature columns by its ``scalar_names``) where it has them, and each
+    camera's pose (the env's ``camera_poses``) in its feature's ``info``, so a dataset says where its images
+    were taken."""
     unwrapped = env.unwrapped
-    return schema.dataset_features(
+    features = schema.dataset_features(
         schema.observation_shapes(env.observation_space),
         token_names=getattr(unwrapped, "token_names", None),
         scalar_names=getattr(unwrapped, "scalar_names", ()),
     )
+    poses = getattr(unwrapped, "camera_poses", {})
+    for camera in getattr(unwrapped, "cameras", ()):
+        pose = poses[camera]
+        info = schema.camera_info(pose.frame, pose.pose9(), pose.quaternion(), pose.fovy)
+        features[schema.policy_key(f"{schema.PIXELS}/{camera}")]["info"] = info
+    return features
 
 
 def check_root(root: Path) -> None:
@@ -232,7 +240,8 @@ def record(
     if int(checkpoint_every) != checkpoint_every or checkpoint_every < 1:
         raise ValueError(f"checkpoint_every={checkpoint_every!r}; expected an integer >= 1")
     task = find_task(recipe.task)
-    task.kwargs(recipe.variant, recipe.obs_mode)  # a bad variant or obs mode fails before anything is written
+    # A bad variant, obs mode, layout or camera fails before anything is written.
+    task.kwargs(recipe.variant, recipe.obs_mode, recipe.obs_layout, recipe.cameras)
     root = Path(root) if root is not None else HF_LEROBOT_HOME / recipe.repo_id
     env = make_env(recipe)  # an env keyword it does not take, or a bad value, fails here: nothing written yet
     features = _features(env)

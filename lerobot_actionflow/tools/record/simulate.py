@@ -49,13 +49,15 @@ class Episode:
 
 
 def make_env(recipe: Recipe):
-    """The env a recipe records (``gym.make`` with its task, variant, obs mode and extra keywords)."""
+    """The env a recipe records (``gym.make`` with its task, variant, observation mode, layout and cameras,
+    and extra keywords)."""
     import gymnasium as gym
     from gym_actionflow import find_task
 
     task = find_task(recipe.task)
+    kwargs = task.kwargs(recipe.variant, recipe.obs_mode, recipe.obs_layout, recipe.cameras)
     try:
-        return gym.make(task.env_id, **task.kwargs(recipe.variant, recipe.obs_mode), **recipe.env_kwargs)
+        return gym.make(task.env_id, **kwargs, **recipe.env_kwargs)
     except TypeError as err:  # a keyword the env does not take, past the recipe's check of its signature
         if not recipe.env_kwargs:
             raise
