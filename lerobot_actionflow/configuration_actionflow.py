@@ -15,13 +15,19 @@ from lerobot_actionflow.core.adaptation import SQUASH_MODES
 from lerobot_actionflow.core.flow import EUCLIDEAN_FRAMES
 from lerobot_actionflow.core.mixers import MIXERS
 from lerobot_actionflow.core.model import Sampler
+from lerobot_actionflow.core.pose_layouts import POSE_LAYOUTS, CameraPose, StateLayout
 from lerobot_actionflow.core.spec import ModelSpec
 from lerobot_actionflow.schema import (
     ACTION,
     ACTION_DIM,
+    ACTION_NAMES,
+    CAMERA_FRAMES,
+    IMAGES,
     POINT_CLOUD,
     POSE_DIM,
     POSE_LAYOUT,
+    STATE,
+    STATE_NAMES,
     TOKEN_FEATURES,
     TOKEN_POSES,
 )
@@ -63,13 +69,16 @@ class RunLengthCosineSchedulerConfig(CosineDecayWithWarmupSchedulerConfig):
 class ActionFlowConfig(PreTrainedConfig):
     """ActionFlow: SE(3) flow matching over action pose sequences with an SE(3) Invariant Transformer.
 
-    Inputs (the token schema: lerobot_actionflow/schema.py):
+    Inputs, either the token schema (lerobot_actionflow/schema.py):
         ``observation.token_poses`` (N, 9) world poses, token 0 = end effector; ``observation.token_features``
-        (N, F); optionally ``observation.images.*`` (3, H, W) posed at the end effector and
-        ``observation.point_cloud`` (P, 3) world points. ``observation.state`` may be present; it is not
-        needed (the EEF pose is token 0).
+        (N, F); optionally ``observation.images.*`` (3, H, W) posed at the end effector or where
+        ``camera_poses`` puts them, and ``observation.point_cloud`` (P, 3) world points;
+    or a plain LeRobot dataset (no token keys):
+        ``observation.state`` (D,) with the end-effector pose in it (``state_pose_*``), which becomes token 0,
+        and ``observation.images.*`` (3, H, W), each posed by its ``camera_poses`` entry.
     Output:
-        ``action`` (10,): absolute target EEF pose (9, world frame) + gripper command in [-1, 1].
+        ``action``: absolute target EEF pose (world frame) + gripper command: (10,) = pose9 + gripper in
+        [-1, 1], or another pose layout + gripper (``action_layout``), converted to and from ours.
     """
 
     # Inputs / output structure.
@@ -142,6 +151,34 @@ class ActionFlowConfig(PreTrainedConfig):
     # Training augmentation of the images: each sample's frames shifted by up to this many pixels each way
     # (edge-padded random crop, one offset per sample); 0 = off. Evaluation always sees the image unshifted.
     image_random_shift: int = 0
+    # How many of the latest observation steps have their images encoded (a token each, or added to the EEF
+    # token): 1 = the current image only, half the image work of 2 at n_obs_steps=2 while the pose tokens
+    # keep the whole history; None = every step. Checkpoints saved before this field existed load with None.
+    image_history: int | None = 1
+
+    # Plain LeRobot datasets (docs/training.md "Training on your own LeRobot camera dataset").
+    # Without observation.token_poses the end effector is the only scene token, built from observation.state:
+    # its pose is the `state_pose_layout` slice (core/pose_layouts.py POSE_LAYOUTS, e.g. "xyz_quat_wxyz")
+    # starting at index `state_pose_start`; its feature is the gripper opening at `state_gripper_index` (None:
+    # no gripper) and, with `state_extra_features`, every other state element (these must not change when the
+    # whole scene moves: joint angles yes, world-frame velocities no). None: from the dataset's state names,
+    # our schema.STATE_NAMES giving "pose9" at 0 with the gripper at 9; otherwise set them.
+    state_pose_layout: str | None = None
+    state_pose_start: int = 0
+    state_gripper_index: int | None = None
+    state_extra_features: bool = False
+    # Where each camera observation.images.<cam> was, by <cam>: [frame, x, y, z, qw, qx, qy, qz] (metres,
+    # scalar-first quaternion) with frame "eef" (on the gripper: the pose is its fixed offset in the EEF
+    # frame, its pose at each step the EEF's times it) or "world" (static: the pose is its extrinsics). Its
+    # image token is posed there. CLI: --policy.camera_poses='{wrist: [eef, 0, 0, 0.05, 1, 0, 0, 0]}'.
+    # Without token keys every camera needs one (a dataset whose image features' `info` holds `camera.frame`,
+    # `camera.pose` and `camera.quaternion_wxyz`, as actionflow-record writes them, gives its own); with
+    # token keys a camera without one is posed at the EEF token. Unused by image_placement="eef".
+    camera_poses: dict[str, list] = field(default_factory=dict)
+    # The dataset's action: a pose in one of POSE_LAYOUTS, then one gripper value (in [-1, 1]: the sampled
+    # command is clamped there). Training converts it to ours (pose9 + gripper), `select_action` back. None:
+    # "pose9" when the action's names are schema.ACTION_NAMES or its shape is (10,) with no names.
+    action_layout: str | None = None
 
     # Runtime (real-robot options of the paper's appendix).
     # Exponential smoothing of consecutive actions: a_out = alpha * a_prev + (1 - alpha) * a_new (0 = off).
@@ -178,6 +215,26 @@ class ActionFlowConfig(PreTrainedConfig):
 
     def __post_init__(self):
         super().__post_init__()
+        self._dataset_names: dict[str, list[str] | None] = {}
+        """The state's and the action's names in the dataset (``set_dataset_feature_metadata``), not saved."""
+        for name in ("state_pose_layout", "action_layout"):
+            if getattr(self, name) not in (None, *POSE_LAYOUTS):
+                raise ValueError(
+                    f"{name}={getattr(self, name)!r}; expected None (from the dataset's names) or one of "
+                    f"{tuple(POSE_LAYOUTS)}"
+                )
+        gripper = self.state_gripper_index
+        if self.state_pose_start < 0 or (gripper is not None and gripper < 0):
+            raise ValueError(
+                f"state_pose_start={self.state_pose_start}, state_gripper_index={self.state_gripper_index}; "
+                "expected indices >= 0 into observation.state (the gripper's may be None: no gripper)"
+            )
+        self.camera_poses = {cam: _camera_entry(cam, entry) for cam, entry in self.camera_poses.items()}
+        if self.camera_poses and self.image_placement != "token":
+            raise ValueError(
+                f"camera_poses={sorted(self.camera_poses)} with image_placement={self.image_placement!r}; "
+                "camera poses place each image as a token of its own: use image_placement='token'"
+            )
         if self.architecture not in ARCHITECTURES:
             raise ValueError(f"architecture={self.architecture!r}; expected one of {ARCHITECTURES}")
         if self.action_space not in ACTION_SPACES:
@@ -192,6 +249,11 @@ class ActionFlowConfig(PreTrainedConfig):
             raise ValueError(f"image_encoder={self.image_encoder!r}; expected one of {IMAGE_ENCODERS}")
         if self.image_placement not in IMAGE_PLACEMENTS:
             raise ValueError(f"image_placement={self.image_placement!r}; expected one of {IMAGE_PLACEMENTS}")
+        if self.image_history is not None and not 1 <= self.image_history <= self.n_obs_steps:
+            raise ValueError(
+                f"image_history={self.image_history!r}, n_obs_steps={self.n_obs_steps}; expected None (every "
+                "observation step) or 1 <= image_history <= n_obs_steps"
+            )
         if not isinstance(self.image_random_shift, int) or self.image_random_shift < 0:
             raise ValueError(f"image_random_shift={self.image_random_shift!r}; expected an int >= 0 (pixels)")
         if not 1 <= self.n_action_steps <= self.horizon:
@@ -263,8 +325,37 @@ class ActionFlowConfig(PreTrainedConfig):
         )
 
     def validate_features(self) -> None:
-        """Check the token keys and the 10-d action; say what is missing and what was expected."""
+        """Check the inputs (token keys, or ``observation.state`` and camera poses), the images and the
+        action; say what is missing or wrong and what was expected. Resolves ``action_layout`` when the
+        action's shape alone says it is ours."""
         inputs = self.input_features or {}
+        if TOKEN_POSES in inputs or TOKEN_FEATURES in inputs:
+            self._validate_tokens(inputs)
+        else:
+            self._validate_state(inputs)
+        if POINT_CLOUD in inputs and (
+            len(inputs[POINT_CLOUD].shape) != 2 or inputs[POINT_CLOUD].shape[1] != 3
+        ):
+            raise ValueError(f"{POINT_CLOUD} has shape {tuple(inputs[POINT_CLOUD].shape)}; expected (P, 3)")
+        for key, ft in self.image_features.items():
+            if len(ft.shape) != 3 or ft.shape[0] != 3:
+                raise ValueError(f"{key} has shape {tuple(ft.shape)}; expected a (3, H, W) RGB image")
+            min_side = MIN_IMAGE_SIDE[self.image_encoder]
+            if min(ft.shape[1:]) < min_side:
+                raise ValueError(
+                    f"{key} has shape {tuple(ft.shape)}; image_encoder={self.image_encoder!r} needs H, W >= "
+                    f"{min_side} (smaller images give a 1x1 feature map and would be ignored): resize them"
+                )
+        cameras = [_camera_name(key) for key in self.image_features]
+        unknown = sorted(set(self.camera_poses) - set(cameras))
+        if unknown:
+            raise ValueError(
+                f"camera_poses names the cameras {unknown}, which are not inputs; expected the <cam> of "
+                f"{IMAGES}.<cam>, one of {cameras}"
+            )
+        self._validate_action()
+
+    def _validate_tokens(self, inputs: dict) -> None:
         missing = [k for k in (TOKEN_POSES, TOKEN_FEATURES) if k not in inputs]
         if missing:
             raise ValueError(
@@ -283,48 +374,121 @@ class ActionFlowConfig(PreTrainedConfig):
                 f"{TOKEN_FEATURES} has shape {tuple(feats)} and {TOKEN_POSES} has shape {tuple(poses)}; "
                 "expected (N, F) with the same token count N as the poses"
             )
-        if POINT_CLOUD in inputs and (
-            len(inputs[POINT_CLOUD].shape) != 2 or inputs[POINT_CLOUD].shape[1] != 3
-        ):
-            raise ValueError(f"{POINT_CLOUD} has shape {tuple(inputs[POINT_CLOUD].shape)}; expected (P, 3)")
-        for key, ft in self.image_features.items():
-            if len(ft.shape) != 3 or ft.shape[0] != 3:
-                raise ValueError(f"{key} has shape {tuple(ft.shape)}; expected a (3, H, W) RGB image")
-            min_side = MIN_IMAGE_SIDE[self.image_encoder]
-            if min(ft.shape[1:]) < min_side:
-                raise ValueError(
-                    f"{key} has shape {tuple(ft.shape)}; image_encoder={self.image_encoder!r} needs H, W >= "
-                    f"{min_side} (smaller images give a 1x1 feature map and would be ignored): resize them"
-                )
+
+    def _validate_state(self, inputs: dict) -> None:
+        """No token keys: ``observation.state`` must say where the end effector is, and every camera must
+        have a pose."""
+        if STATE not in inputs:
+            raise ValueError(
+                f"ActionFlow needs either the token keys {TOKEN_POSES} (N, 9) and {TOKEN_FEATURES} (N, F), "
+                f"or {STATE} with the end-effector pose in it; got {sorted(inputs)}"
+            )
+        shape, names = tuple(inputs[STATE].shape), self._dataset_names.get(STATE)
+        if self.state_pose_layout is None:
+            raise ValueError(
+                f"{STATE} has shape {shape}{_named(names)}; without {TOKEN_POSES} ActionFlow builds the "
+                "end-effector token from it, but nothing says where the pose is. Set "
+                f"--policy.state_pose_layout (one of {tuple(POSE_LAYOUTS)}), --policy.state_pose_start (the "
+                "index of its first element) and --policy.state_gripper_index (the gripper opening's index; "
+                "leave it unset for none), e.g. --policy.state_pose_layout=xyz_quat_wxyz "
+                "--policy.state_pose_start=0 --policy.state_gripper_index=7"
+            )
+        layout = self.state_layout()
+        used = [*layout.pose_indices, *([] if layout.gripper_index is None else [layout.gripper_index])]
+        if len(shape) != 1 or max(used) >= shape[0] or layout.gripper_index in layout.pose_indices:
+            raise ValueError(
+                f"{STATE} has shape {shape}{_named(names)}; state_pose_layout={layout.pose!r} at "
+                f"state_pose_start={layout.start} reads the indices {list(layout.pose_indices)} and "
+                f"state_gripper_index={layout.gripper_index}: expected a flat (D,) state holding both, apart"
+            )
+        posed = self.image_placement == "token"  # "eef": the images join the EEF token's feature, unposed
+        missing = [key for key in self.image_features if posed and _camera_name(key) not in self.camera_poses]
+        if missing:
+            raise ValueError(
+                f"{missing} have no entry in camera_poses; without {TOKEN_POSES} each image token is posed "
+                "where its camera was. Set it for every camera, e.g. --policy.camera_poses="
+                f"'{{{_camera_name(missing[0])}: [world, 0.5, 0, 0.4, 0, 0, 1, 0]}}' for a static camera "
+                "([world, x, y, z, qw, qx, qy, qz]: its extrinsics) or [eef, 0, 0, 0.05, 1, 0, 0, 0] for a "
+                "camera on the gripper (its fixed offset in the end effector's frame)"
+            )
+
+    def _validate_action(self) -> None:
         action = (self.output_features or {}).get(ACTION)
         if action is None or action.type != FeatureType.ACTION:
             raise ValueError(
                 f"ActionFlow needs an 'action' output feature (got {sorted(self.output_features or {})}); "
                 "expected shape (10,): target EEF pose (9) + gripper command"
             )
-        if tuple(action.shape) != (ACTION_DIM,):
+        shape, names = tuple(action.shape), self._dataset_names.get(ACTION)
+        if self.action_layout is None and shape == (ACTION_DIM,) and names is None:
+            self.action_layout = "pose9"
+        if self.action_layout is None:
+            sizes = {name: size + 1 for name, size in POSE_LAYOUTS.items()}
             raise ValueError(
-                f"action has shape {tuple(action.shape)}; expected (10,): target EEF pose {POSE_LAYOUT} "
-                "+ gripper command in [-1, 1]"
+                f"action has shape {shape}{_named(names)}; expected (10,): target EEF pose {POSE_LAYOUT} "
+                f"+ gripper command in [-1, 1] (names {list(ACTION_NAMES)}), or an end-effector pose in "
+                "another layout followed by one gripper value: set --policy.action_layout to the layout "
+                f"(sizes with the gripper: {sizes}). Joint-space actions (joint angles or velocities) cannot "
+                "be converted to end-effector poses: record the target end-effector pose as the action"
+            )
+        expected = (POSE_LAYOUTS[self.action_layout] + 1,)
+        if shape != expected:
+            raise ValueError(
+                f"action has shape {shape}; action_layout={self.action_layout!r} expects {expected}: the "
+                f"pose ({expected[0] - 1} values) + one gripper value; for the default pose9 that is target "
+                f"EEF pose {POSE_LAYOUT} + gripper command in [-1, 1]"
             )
 
     def set_dataset_feature_metadata(self, features: dict) -> None:
-        """Called by LeRobot's ``make_policy`` with the dataset's features: keep the scene tokens' names."""
+        """Called by LeRobot's ``make_policy`` with the dataset's features: keep the scene tokens' names, and
+        read the state's and the action's layout from their names where those are ours."""
         names = (features.get(TOKEN_POSES) or {}).get("names")
         if isinstance(names, dict):  # {"token": [...], "pose": [...]}: the first axis names the tokens
             names = next(iter(names.values()), None)
         if isinstance(names, list) and all(isinstance(n, str) for n in names):
             self.token_names = list(names)
+        self._dataset_names = {key: _flat_names(features.get(key)) for key in (STATE, ACTION)}
+        uses_state = TOKEN_POSES not in (self.input_features or {})
+        if uses_state and self.state_pose_layout is None and self._dataset_names[STATE] == list(STATE_NAMES):
+            self.state_pose_layout, self.state_pose_start = "pose9", 0
+            self.state_gripper_index = STATE_NAMES.index("gripper_opening")
+        if self.action_layout is None and self._dataset_names[ACTION] == list(ACTION_NAMES):
+            self.action_layout = "pose9"
+        for key, feature in features.items() if uses_state and self.image_placement == "token" else ():
+            info = (feature or {}).get("info") or {}
+            cam = _camera_name(key)
+            if key.startswith(f"{IMAGES}.") and cam not in self.camera_poses and "camera.frame" in info:
+                pose = [*info["camera.pose"][:3], *info["camera.quaternion_wxyz"]]
+                self.camera_poses[cam] = _camera_entry(cam, [info["camera.frame"], *pose])
+
+    def state_layout(self) -> StateLayout | None:
+        """Where the end effector is in ``observation.state``; None when the inputs have token keys."""
+        inputs = self.input_features or {}
+        if TOKEN_POSES in inputs or self.state_pose_layout is None:
+            return None
+        return StateLayout(
+            self.state_pose_layout,
+            self.state_pose_start,
+            self.state_gripper_index,
+            self.state_extra_features,
+            inputs[STATE].shape[0],
+        )
 
     def model_spec(self) -> ModelSpec:
         """The plain-data spec :class:`~lerobot_actionflow.core.model.ActionFlowModel` is built from: this
         config's settings and the token layout of its input features."""
         inputs = self.input_features or {}
-        n_tokens, feature_dim = inputs[TOKEN_FEATURES].shape
+        state = self.state_layout()
+        n_tokens, feature_dim = inputs[TOKEN_FEATURES].shape if state is None else (1, state.feature_dim)
+        cameras = {
+            f"{IMAGES}.{cam}": CameraPose(frame, tuple(pose))
+            for cam, (frame, *pose) in self.camera_poses.items()
+        }
         settings = {name: getattr(self, name) for name in ModelSpec.settings()}
         return ModelSpec(**{
             **settings, "tokens_per_step": n_tokens, "token_feature_dim": feature_dim,
-            "image_keys": tuple(self.image_features), "point_cloud": POINT_CLOUD in inputs,
+            "image_keys": tuple(self.image_features), "camera_poses": cameras,
+            "point_cloud": POINT_CLOUD in inputs,
         })  # fmt: skip
 
     def sampler(self) -> Sampler:
@@ -343,3 +507,38 @@ class ActionFlowConfig(PreTrainedConfig):
     @property
     def reward_delta_indices(self) -> None:
         return None
+
+
+def _camera_name(image_key: str) -> str:
+    """``observation.images.wrist -> wrist``."""
+    return image_key.removeprefix(f"{IMAGES}.")
+
+
+def _named(names: list[str] | None) -> str:
+    """`` (names [...])`` for an error message, or nothing when the dataset gave none."""
+    return f" (names {names})" if names else ""
+
+
+def _flat_names(feature: dict | None) -> list[str] | None:
+    """A dataset feature's element names as one list (LeRobot also writes ``{axis: [names]}``), or None."""
+    names = (feature or {}).get("names")
+    if isinstance(names, dict):
+        names = next(iter(names.values()), None)
+    return list(names) if isinstance(names, (list, tuple)) else None
+
+
+def _camera_entry(cam: str, entry: list) -> list:
+    """A ``camera_poses`` entry checked: ``[frame, x, y, z, qw, qx, qy, qz]`` with the numbers as floats
+    (YAML reads ``-1e-3`` as a string)."""
+    frame, *numbers = entry if isinstance(entry, (list, tuple)) and entry else [None]
+    try:
+        pose = [float(v) for v in numbers]
+    except (TypeError, ValueError):
+        pose = []
+    if frame not in CAMERA_FRAMES or len(pose) != 7 or sum(v * v for v in pose[3:]) < 1e-12:
+        raise ValueError(
+            f"camera_poses[{cam!r}]={entry!r}; expected [frame, x, y, z, qw, qx, qy, qz]: frame in "
+            f"{CAMERA_FRAMES}, the position in metres and a non-zero scalar-first quaternion, e.g. "
+            "[eef, 0, 0, 0.05, 1, 0, 0, 0]"
+        )
+    return [frame, *pose]

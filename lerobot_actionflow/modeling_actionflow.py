@@ -22,9 +22,22 @@ from torch import Tensor
 from lerobot_actionflow.configuration_actionflow import ActionFlowConfig
 from lerobot_actionflow.core import geometry as g
 from lerobot_actionflow.core.model import ActionFlowModel
-from lerobot_actionflow.schema import ACTION, ACTION_DIM, POSE_DIM, POSE_LAYOUT, TOKEN_FEATURES, TOKEN_POSES
+from lerobot_actionflow.core.pose_layouts import POSE_LAYOUTS, actions_from_ours, actions_to_ours
+from lerobot_actionflow.schema import (
+    ACTION,
+    POSE_DIM,
+    POSE_LAYOUT,
+    STATE,
+    TOKEN_FEATURES,
+    TOKEN_POSES,
+)
 
-LEGACY_DEFAULTS = {"squash_limit": 1.0, "rotation_noise_std": None, "euclidean_frame": "eef"}
+LEGACY_DEFAULTS = {
+    "squash_limit": 1.0,
+    "rotation_noise_std": None,
+    "euclidean_frame": "eef",
+    "image_history": None,
+}
 """Config fields whose default changed after checkpoints were published, with the value those checkpoints were
 trained with: a saved config that lacks the field gets this value back on loading, not today's default."""
 _HUB_KWARGS = (
@@ -89,6 +102,11 @@ class ActionFlowPolicy(PreTrainedPolicy):
             # lerobot-train: the checkpoint records which task(s) it learned (lerobot-eval checks them).
             config.trained_tasks = sorted(str(t) for t in dataset_meta.tasks.index)
         self._task_checked = False
+        self.state_layout = config.state_layout()
+        """Where the EEF is in ``observation.state`` (a dataset without token keys), else None."""
+        self.action_layout: str = config.action_layout
+        """The dataset's action layout: ``forward`` converts its actions to ours, sampling back."""
+        _check_gripper_range(kwargs.get("dataset_stats"))
         model = ActionFlowModel(config.model_spec())
         # Checkpoints hold the network's weights as `network.*` (the names from before the model existed): the
         # network is registered here under that name, and the model, which has no weights of its own, is kept
@@ -101,6 +119,10 @@ class ActionFlowPolicy(PreTrainedPolicy):
             self.ema_network = copy.deepcopy(self.network).requires_grad_(False)
             self.register_buffer("ema_updates", torch.zeros((), dtype=torch.long))
         self.observation_keys = model.observation_keys
+        """The batch keys the policy reads: the model's, with ``observation.state`` for the token keys in a
+        dataset without them."""
+        if self.state_layout is not None:
+            self.observation_keys = (STATE, *model.observation_keys[2:])
         self.reset()
 
     def get_optim_params(self) -> dict:
@@ -175,16 +197,23 @@ class ActionFlowPolicy(PreTrainedPolicy):
         """Validate the observation and return it with a history axis: ``[B, T, ...]``, ``T = n_obs_steps``.
 
         A batch without a history axis (one step, as from an environment) is repeated over the history.
+        Without token keys the EEF token is built from ``observation.state`` first.
         """
         for key in self.observation_keys:
             if key not in batch:
+                scene = (
+                    [f"{TOKEN_POSES} (N, 9)", f"{TOKEN_FEATURES} (N, F)"]
+                    if self.state_layout is None
+                    else [f"{STATE} ({self.state_layout.dim},)"]
+                )
                 raise ValueError(
                     f"missing observation key {key!r}; the batch has {sorted(batch)}. ActionFlow expects "
-                    f"{TOKEN_POSES} (N, 9), {TOKEN_FEATURES} (N, F)"
-                    + "".join(f", {k}" for k in self.observation_keys[2:])
+                    + ", ".join([*scene, *self.model.observation_keys[2:]])
                 )
+        if self.state_layout is not None:
+            batch = {**batch, **self._state_tokens(batch[STATE])}
         poses, feats = batch[TOKEN_POSES], batch[TOKEN_FEATURES]
-        n_tokens, feature_dim = self.config.input_features[TOKEN_FEATURES].shape
+        n_tokens, feature_dim = self.model.spec.tokens_per_step, self.model.spec.token_feature_dim
         if poses.dim() not in (3, 4) or poses.shape[-1] != POSE_DIM:
             raise ValueError(
                 f"{TOKEN_POSES} has shape {tuple(poses.shape)}; expected (B, N, 9) or (B, T, N, 9) pose "
@@ -210,7 +239,7 @@ class ActionFlowPolicy(PreTrainedPolicy):
             )
         has_history = poses.dim() == 4
         out = {}
-        for key in self.observation_keys:
+        for key in self.model.observation_keys:
             x = batch[key]
             if not has_history:
                 x = x.unsqueeze(1).expand(x.shape[0], self.config.n_obs_steps, *x.shape[1:])
@@ -222,6 +251,19 @@ class ActionFlowPolicy(PreTrainedPolicy):
             out[key] = x
         return out
 
+    def _state_tokens(self, state: Tensor) -> dict[str, Tensor]:
+        """``observation.state [B, D]`` or ``[B, T, D]`` -> the EEF token: token poses ``[B, (T,) 1, 9]`` and
+        features ``[B, (T,) 1, F]``."""
+        dim = self.state_layout.dim
+        if state.dim() not in (2, 3) or state.shape[-1] != dim:
+            raise ValueError(
+                f"{STATE} has shape {tuple(state.shape)}; expected (B, {dim}) or (B, T, {dim}), the state "
+                f"this policy was trained on (the EEF pose in layout {self.state_layout.pose!r} at index "
+                f"{self.state_layout.start})"
+            )
+        poses, feats = self.state_layout.tokens(state)
+        return {TOKEN_POSES: poses, TOKEN_FEATURES: feats}
+
     # ------------------------------------------------------------------ training
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
@@ -229,12 +271,14 @@ class ActionFlowPolicy(PreTrainedPolicy):
         obs = self._check_and_stack(batch)
         if ACTION not in batch:
             raise ValueError(f"missing key {ACTION!r} for training; the batch has {sorted(batch)}")
-        action = batch[ACTION]
-        if action.dim() != 3 or action.shape[1:] != (self.config.horizon, ACTION_DIM):
+        action, size = batch[ACTION], POSE_LAYOUTS[self.action_layout] + 1
+        if action.dim() != 3 or action.shape[1:] != (self.config.horizon, size):
+            layout = f"pose {POSE_LAYOUT}" if self.action_layout == "pose9" else f"pose {self.action_layout}"
             raise ValueError(
-                f"{ACTION} has shape {tuple(action.shape)}; expected (B, horizon={self.config.horizon}, 10): "
-                f"target EEF pose {POSE_LAYOUT} + gripper"
+                f"{ACTION} has shape {tuple(action.shape)}; expected (B, horizon={self.config.horizon}, "
+                f"{size}): target EEF {layout} + gripper"
             )
+        action = actions_to_ours(self.action_layout, action)  # [B, H, 10]
         valid = torch.ones_like(action[..., 0], dtype=torch.bool)
         if self.config.mask_padded_actions and "action_is_pad" in batch:
             valid = ~batch["action_is_pad"]
@@ -245,20 +289,23 @@ class ActionFlowPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], noise=None, **kwargs) -> Tensor:
-        """Sample a chunk ``[B, horizon, 10]`` with ``num_inference_steps`` Euler steps.
+        """Sample a chunk ``[B, horizon, A]`` with ``num_inference_steps`` Euler steps, in the dataset's
+        action layout (``A = 10``, target pose9 + gripper, for ours).
 
         ``noise`` (optional) is the initial flow state in the EEF frame: an ``SE3State`` for
         ``action_space="se3"``, a ``[B, H, 10]`` tensor for ``"euclidean"``; by default it is drawn from
         torch's global generator.
         """
         with self._sampling_weights():
-            return self.model.sample(self._check_and_stack(batch), noise, self.config.sampler())
+            chunk = self.model.sample(self._check_and_stack(batch), noise, self.config.sampler())
+        return actions_from_ours(self.action_layout, chunk)
 
     @torch.no_grad()
     def sample_trajectory(self, batch: dict[str, Tensor], noise=None) -> FlowTrajectory:
         """:meth:`predict_action_chunk` with every intermediate state kept (see :class:`FlowTrajectory`):
         under the same seed ``actions[-1]`` is bit for bit the chunk ``predict_action_chunk`` samples
-        (tested), as both run ``ActionFlowModel``'s one sampling path."""
+        (tested), as both run ``ActionFlowModel``'s one sampling path. Actions are ours (pose9 + gripper)
+        whatever the dataset's action layout."""
         with self._sampling_weights():
             times, actions = self.model.sample_trajectory(
                 self._check_and_stack(batch), noise, self.config.sampler()
@@ -284,7 +331,8 @@ class ActionFlowPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
-        """One action ``[B, 10]`` per call: a new chunk is sampled every ``n_action_steps`` calls."""
+        """One action ``[B, A]`` per call (the dataset's action layout; ``A = 10`` for ours): a new chunk is
+        sampled every ``n_action_steps`` calls."""
         if not self._task_checked:
             self._check_task(batch)
         for key in self.observation_keys:
@@ -299,10 +347,10 @@ class ActionFlowPolicy(PreTrainedPolicy):
             start = self.clock()
             if self.record_flow:
                 self.last_flow = self.sample_trajectory(history)
-                chunk = self.last_flow.actions[-1]
+                chunk = actions_from_ours(self.action_layout, self.last_flow.actions[-1])
             else:
                 chunk = self.predict_action_chunk(history)
-            self.last_chunk = chunk  # the whole generated chunk, world frame (for visualisation)
+            self.last_chunk = chunk  # the whole generated chunk, world frame, dataset layout (visualisation)
             skip = 0
             if self.config.latency_compensation:
                 # Actions are due at 1 / control_fps intervals from the observation; keep at least one. On
@@ -315,12 +363,13 @@ class ActionFlowPolicy(PreTrainedPolicy):
             self._action_queue.extend(chunk[:, skip : skip + self.config.n_action_steps].unbind(1))
         action = self._action_queue.popleft()
         if self.config.action_smoothing > 0 and self._last_action is not None:
-            action = smooth_action(self._last_action, action, self.config.action_smoothing)
+            ours = [actions_to_ours(self.action_layout, a) for a in (self._last_action, action)]
+            action = actions_from_ours(self.action_layout, smooth_action(*ours, self.config.action_smoothing))
         self._last_action = action
         return action
 
     def set_executed_action(self, action: Tensor) -> None:
-        """Tell the policy which action ``[B, 10]`` the robot executed last, when that was not the one
+        """Tell the policy which action ``[B, A]`` the robot executed last, when that was not the one
         ``select_action`` returned (an asynchronous runtime keeps executing the previous chunk while the next
         is sampled): ``action_smoothing`` filters the next returned action against it."""
         self._last_action = action
@@ -347,3 +396,18 @@ def smooth_action(previous: Tensor, new: Tensor, alpha: float) -> Tensor:
     trans = alpha * trans_prev + (1.0 - alpha) * trans_new
     gripper = alpha * previous[..., POSE_DIM:] + (1.0 - alpha) * new[..., POSE_DIM:]
     return torch.cat([g.rt_to_pose9(rot, trans), gripper], dim=-1)
+
+
+def _check_gripper_range(stats: dict | None) -> None:
+    """Refuse a dataset whose action's gripper value (its last element) leaves [-1, 1]: the sampled command
+    is clamped there, so such a policy could never command the larger values (no stats: nothing to check)."""
+    column = (stats or {}).get(ACTION) or {}
+    if "min" not in column or "max" not in column:
+        return
+    low, high = float(torch.as_tensor(column["min"])[-1]), float(torch.as_tensor(column["max"])[-1])
+    if low < -1.0 - 1e-6 or high > 1.0 + 1e-6:
+        raise ValueError(
+            f"the dataset's action gripper value (its last element) ranges over [{low:g}, {high:g}]; "
+            "ActionFlow expects a gripper command in [-1, 1] (-1 open, 1 closed) and clamps what it samples "
+            "there: record the gripper command scaled to [-1, 1]"
+        )

@@ -134,13 +134,15 @@ def test_policy_with_image_options_is_se3_equivariant(architecture, image_encode
 
 
 @pytest.mark.parametrize("architecture", ["ipa", "multi_token", "single_token"])
-def test_eef_placement_has_one_token_fewer_per_step(architecture):
-    """With "eef" the wrist image has no token of its own: one token fewer per history step than "token"
-    (single_token pools them all, so its pooling layer must be built for that count)."""
+@pytest.mark.parametrize("image_history", [None, 1])
+def test_eef_placement_has_one_token_fewer_per_step(architecture, image_history):
+    """With "eef" the wrist image has no token of its own: one token fewer per imaged history step than
+    "token" (single_token pools them all, so its pooling layer must be built for that count). With
+    ``image_history=1`` only the current step has an image token; None gives every step one."""
     obs, n_steps = _observation(2, 32), 2
     counts = {}
     for placement in ("token", "eef"):
-        policy = _policy("cnn", placement, 32, architecture=architecture)
+        policy = _policy("cnn", placement, 32, architecture=architecture, image_history=image_history)
         with torch.no_grad():
             _, scene = policy.model.encode(obs)
             policy.predict_action_chunk(obs)
@@ -148,14 +150,17 @@ def test_eef_placement_has_one_token_fewer_per_step(architecture):
         if architecture == "single_token":
             assert counts[placement] == 1
             counts[placement] = policy.network.obs_pool[0].in_features // policy.config.dim
-    assert counts["token"] == n_steps * (N_TOKENS + 2)  # scene tokens, the image, the point cloud
+    imaged = n_steps if image_history is None else image_history
+    assert counts["token"] == n_steps * (N_TOKENS + 1) + imaged  # scene tokens, the point cloud, the images
     assert counts["eef"] == n_steps * (N_TOKENS + 1)
 
 
-def test_eef_placement_adds_the_image_feature_to_the_eef_token_only():
+@pytest.mark.parametrize("image_history", [None, 1])
+def test_eef_placement_adds_the_image_feature_to_the_eef_token_only(image_history):
     """The paper's placement: the EEF token's feature is its own encoding plus the encoded image of the same
-    step; the other tokens do not see the image (before the transformer)."""
-    model = _policy("cnn", "eef", 32).model
+    step (of the imaged steps: the current one with ``image_history=1``); the other tokens do not see the
+    image (before the transformer)."""
+    model = _policy("cnn", "eef", 32, image_history=image_history).model
     network = model.network
     obs = _observation(3, 32)
     with torch.no_grad():
@@ -163,8 +168,60 @@ def test_eef_placement_adds_the_image_feature_to_the_eef_token_only():
         feats = network.feature_encoder(obs["observation.token_features"]) + network.step_embed[None, :, None]
         image = network.image_encoders["observation_images_wrist"](obs[IMAGE])  # [B, T, C]
     scene_feats = scene.features.unflatten(1, (2, N_TOKENS + 1))  # [B, T, N + point cloud, C]
-    torch.testing.assert_close(scene_feats[:, :, 0], feats[:, :, 0] + image, atol=1e-5, rtol=0)
+    first = 0 if image_history is None else 2 - image_history
+    torch.testing.assert_close(scene_feats[:, first:, 0], feats[:, first:, 0] + image[:, first:], atol=1e-5,
+                               rtol=0)  # fmt: skip
+    torch.testing.assert_close(scene_feats[:, :first, 0], feats[:, :first, 0], atol=0, rtol=0)
     torch.testing.assert_close(scene_feats[:, :, 1:N_TOKENS], feats[:, :, 1:], atol=0, rtol=0)
+
+
+@pytest.mark.parametrize("placement", ["token", "eef"])
+def test_image_history_one_ignores_the_earlier_images(placement):
+    """``image_history=1`` (the default): the chunk depends on the current image only; a different image at
+    the earlier history step leaves it bit for bit unchanged, a different current image changes it."""
+    assert ActionFlowConfig.image_history == 1
+    policy = _policy("cnn", placement, 32)
+    obs = _observation(4, 32)
+    other = _images(11, 32, (2, 2))
+    chunks = []
+    for images in (obs[IMAGE], torch.cat([other[:, :1], obs[IMAGE][:, 1:]], 1), torch.cat([obs[IMAGE][:, :1],
+                   other[:, 1:]], 1)):  # fmt: skip
+        torch.manual_seed(3)
+        chunks.append(policy.predict_action_chunk({**obs, IMAGE: images}))
+    torch.testing.assert_close(chunks[1], chunks[0], atol=0, rtol=0)
+    assert (chunks[2] - chunks[0]).abs().max() > 1e-4
+
+
+@pytest.mark.parametrize("image_history", [None, 1])
+def test_image_history_token_order(image_history):
+    """The observation tokens step by step, read from their positions: with ``image_history=None`` each step
+    holds the scene tokens, the image (at the EEF), then the point cloud (at its centroid), the order that
+    checkpoints trained before the field existed hold; with 1 the earlier step has no image token."""
+    model = _policy("cnn", "token", 32, image_history=image_history).model
+    obs = _observation(5, 32)
+    with torch.no_grad():
+        frame, scene = model.encode(obs)
+    rot, trans = frame.to_local(*g.pose9_to_rt(obs["observation.token_poses"]))  # [B, T, N, 3]
+    centroid = frame.points_to_local(obs[POINTS]).mean(-2)  # [B, T, 3]
+    steps = []
+    for t in range(2):
+        image = [trans[:, t, :1]] if image_history is None or t == 1 else []
+        steps += [trans[:, t], *image, centroid[:, t, None]]
+    torch.testing.assert_close(scene.trans, torch.cat(steps, 1), atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("value", [0, 3, -1])
+def test_bad_image_history_is_rejected(value):
+    with pytest.raises(ValueError, match=rf"image_history={value}.*n_obs_steps=2"):
+        make_config(image_history=value)
+
+
+def test_a_checkpoint_saved_before_image_history_loads_with_every_step():
+    """Checkpoints saved before ``image_history`` existed encoded every step's image: they load with None,
+    not today's default of 1."""
+    path = FIXTURES / "policy_ipa_se3"
+    assert "image_history" not in json.loads((path / "config.json").read_text())
+    assert ActionFlowPolicy.from_pretrained(path).config.image_history is None
 
 
 @pytest.mark.parametrize(

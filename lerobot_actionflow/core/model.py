@@ -8,6 +8,7 @@ with what LeRobot needs: input validation, the observation and action queues, an
 Data flow for one chunk::
 
     token poses [B, T, N, 9] --(EEF frame of token 0 at the last step, x scale)--> local poses
+    camera poses (fixed, or the EEF token's times a fixed offset) --(same frame)--> image token poses
     token features / images / points --> encoders --> SceneTokens (once per chunk)
     noise in the local frame --(K Euler steps of the flow, network velocity)--> local action poses
     --(back to the world frame)--> actions [B, H, 10] = target EEF pose (9) + gripper
@@ -65,7 +66,12 @@ class ActionFlowModel(nn.Module):
         rot_l, trans_l = frame.to_local(rot, trans)
         images = {k: obs[k] for k in self.image_keys}
         points = frame.points_to_local(obs[POINT_CLOUD]) if self.has_point_cloud else None
-        return frame, self.network.encode_observation(obs[TOKEN_FEATURES], rot_l, trans_l, images, points)
+        cameras = {  # each camera's pose at each step, from the EEF token's: [B, T, 3, 3], [B, T, 3]
+            k: frame.to_local(*camera.world_pose(rot[:, :, 0], trans[:, :, 0]))
+            for k, camera in self.spec.camera_poses.items()
+        }
+        scene = self.network.encode_observation(obs[TOKEN_FEATURES], rot_l, trans_l, images, points, cameras)
+        return frame, scene
 
     def velocity(self, scene: SceneTokens, x, t: Tensor) -> Tensor:
         """The network's velocity ``[B, H, D]`` at the flow's native state ``x`` and flow time ``t [B]``."""

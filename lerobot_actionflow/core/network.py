@@ -86,7 +86,10 @@ class ActionFlowNetwork(nn.Module):
         self.action_input = nn.Linear(action_input_dim, dim)
         # The architecture's own modules, registered on the network under the names checkpoints hold.
         self.mix = MIXERS[spec.architecture]
-        num_obs_tokens = spec.n_obs_steps * (spec.tokens_per_step + extra_tokens)
+        self.image_steps = spec.n_obs_steps if spec.image_history is None else spec.image_history
+        """How many of the latest observation steps have their images encoded (``spec.image_history``)."""
+        num_obs_tokens = spec.n_obs_steps * (spec.tokens_per_step + int(spec.point_cloud))
+        num_obs_tokens += self.image_steps * image_tokens
         for name, module in self.mix.build(spec, num_obs_tokens).items():
             self.add_module(name, module)
         self.head = nn.Linear(dim, velocity_dim)
@@ -98,29 +101,35 @@ class ActionFlowNetwork(nn.Module):
         trans: Tensor,
         images: dict[str, Tensor] | None = None,
         points: Tensor | None = None,
+        image_poses: dict[str, tuple[Tensor, Tensor]] | None = None,
     ) -> SceneTokens:
         """Encode the observation (and the constant part of the action tokens) once per chunk.
 
         features ``[B, T, N, F]``; rot ``[B, T, N, 3, 3]``, trans ``[B, T, N, 3]`` in the scaled EEF frame;
-        images ``{key: [B, T, 3, H, W]}`` in [0, 1], each a token posed at the EEF token of its step
-        (``image_placement="token"``) or added to that EEF token's feature (``"eef"``); points
+        images ``{key: [B, T, 3, H, W]}`` in [0, 1], each a token posed where its camera was
+        (``image_poses[key]``: rot ``[B, T, 3, 3]``, trans ``[B, T, 3]`` in the scaled EEF frame) or, without
+        an entry there, at the EEF token of its step (``image_placement="token"``), or added to that EEF
+        token's feature (``"eef"``); points
         ``[B, T, P, 3]`` in the scaled EEF frame, posed at their centroid with the identity rotation
         (``"pointnet"``) or the Vector-Neuron encoder's frame (``"vn"``).
         """
         b, t_steps, n, _ = features.shape
+        k = self.image_steps
         s = self.feature_encoder(features)  # [B, T, N, C]
         if self.spec.image_placement == "eef" and self.spec.image_keys:
             # The camera is the EEF token's sensor: its image becomes part of that token's feature.
-            encoded = [self.image_encoders[_module_key(k)](images[k]) for k in self.spec.image_keys]
-            img = torch.stack(encoded).sum(0)  # [B, T, C]
-            s = torch.cat([s[:, :, :1] + img[:, :, None], s[:, :, 1:]], dim=2)
-        feats, rots, transs = [s], [rot], [trans]
+            encoded = [self.image_encoders[_module_key(c)](images[c][:, -k:]) for c in self.spec.image_keys]
+            img = torch.stack(encoded).sum(0)  # [B, k, C]
+            eef = torch.cat([s[:, : t_steps - k, :1], s[:, t_steps - k :, :1] + img[:, :, None]], dim=1)
+            s = torch.cat([eef, s[:, :, 1:]], dim=2)
+        # Tokens of every step (the scene, the point cloud) and of the last k steps only (the cameras).
+        every, last = ([s], [rot], [trans]), ([], [], [])
         extra = 0
         for key in self.spec.image_keys if self.spec.image_placement == "token" else ():
-            img = self.image_encoders[_module_key(key)](images[key])  # [B, T, C]
-            feats.append((img + self.extra_token_embed[extra])[:, :, None])
-            rots.append(rot[:, :, :1])
-            transs.append(trans[:, :, :1])
+            img = self.image_encoders[_module_key(key)](images[key][:, -k:])  # [B, k, C]
+            cam_rot, cam_trans = (image_poses or {}).get(key, (rot[:, :, 0], trans[:, :, 0]))
+            _append(last, (img + self.extra_token_embed[extra])[:, :, None], cam_rot[:, -k:, None],
+                    cam_trans[:, -k:, None])  # fmt: skip
             extra += 1
         if self.point_encoder is not None:
             centroid = points.mean(dim=-2)  # [B, T, 3]
@@ -131,12 +140,8 @@ class ActionFlowNetwork(nn.Module):
             else:
                 pc = self.point_encoder(centred)  # [B, T, C]
                 pc_rot = torch.eye(3, dtype=rot.dtype, device=rot.device).expand(b, t_steps, 1, 3, 3)
-            feats.append((pc + self.extra_token_embed[extra])[:, :, None])
-            rots.append(pc_rot)
-            transs.append(centroid[:, :, None])
-        s = torch.cat(feats, dim=2) + self.step_embed[None, :, None]  # [B, T, N', C]
-        rot, trans = torch.cat(rots, dim=2), torch.cat(transs, dim=2)
-        s, rot, trans = s.flatten(1, 2), rot.flatten(1, 2), trans.flatten(1, 2)  # [B, M, ...]
+            _append(every, (pc + self.extra_token_embed[extra])[:, :, None], pc_rot, centroid[:, :, None])
+        s, rot, trans = _step_tokens(every, last, k, self.step_embed)  # [B, M, ...]
         s = self.mix.observe(self, s, rot, trans)
         squashed = squash(trans, self.spec.squash_limit, self.spec.squash_mode)
         return SceneTokens(s, rot, trans, squashed, self.action_feature + self.action_index_embed)
@@ -149,6 +154,32 @@ class ActionFlowNetwork(nn.Module):
         a = scene.action_embed + self.time_embed(t)[:, None] + self.action_input(act_input)  # [B, H, C]
         out = self.mix.mix(self, scene, a, act_rot, act_trans)
         return self.head(out[:, -a.shape[1] :])
+
+
+def _append(tokens: tuple[list, list, list], feats: Tensor, rot: Tensor, trans: Tensor) -> None:
+    """Add one kind of token ``[B, T', 1, ...]`` (features, rotations, translations) to a group."""
+    for group, x in zip(tokens, (feats, rot, trans), strict=True):
+        group.append(x)
+
+
+def _step_tokens(
+    every: tuple[list, list, list], last: tuple[list, list, list], k: int, step_embed: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The observation tokens as one sequence ``[B, M, C]``, ``[B, M, 3, 3]``, ``[B, M, 3]``, step by step:
+    each step's tokens of ``every`` step (``[B, T, n, ...]``: the scene and the point cloud, the last of
+    them after the cameras), with the cameras' tokens (``last``, ``[B, k, 1, ...]``) in the last ``k`` steps,
+    each with its step's embedding. With ``k = T`` a step holds the scene, the cameras, then the point
+    cloud, the order checkpoints trained with every step's images hold."""
+    t = every[0][0].shape[1]
+    early = [torch.cat([x[:, : t - k] for x in group], dim=2) for group in every]  # [B, T - k, n, ...]
+    late = [
+        torch.cat([group[0][:, t - k :], *cams, *(x[:, t - k :] for x in group[1:])], dim=2)
+        for group, cams in zip(every, last, strict=True)
+    ]  # [B, k, n + cameras, ...]
+    early[0] = early[0] + step_embed[None, : t - k, None]
+    late[0] = late[0] + step_embed[None, t - k :, None]
+    pairs = zip(early, late, strict=True)
+    return tuple(torch.cat([e.flatten(1, 2), la.flatten(1, 2)], dim=1) for e, la in pairs)
 
 
 def _module_key(feature_key: str) -> str:

@@ -5,7 +5,9 @@ directly."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
+
+from lerobot_actionflow.core.pose_layouts import CameraPose
 
 
 @dataclass(frozen=True)
@@ -18,6 +20,9 @@ class ModelSpec:
     token_feature_dim: int
     """F, the feature width of each scene token."""
     image_keys: tuple[str, ...] = ()
+    camera_poses: dict[str, CameraPose] = field(default_factory=dict)
+    """Image key -> where that camera is; its image token is posed there. An image key without an entry is
+    posed at the EEF token of its step (``image_placement="token"``)."""
     point_cloud: bool = False
     n_obs_steps: int = 2
     horizon: int = 16
@@ -31,6 +36,7 @@ class ModelSpec:
     rotation_loss_weight: float = 1.0
     gripper_loss_weight: float = 1.0
     image_random_shift: int = 0
+    image_history: int | None = 1
     architecture: str = "ipa"
     dim: int = 128
     num_heads: int = 4
@@ -47,5 +53,5 @@ class ModelSpec:
     @classmethod
     def settings(cls) -> tuple[str, ...]:
         """The fields a config supplies by name (the layout fields come from its input features)."""
-        layout = {"tokens_per_step", "token_feature_dim", "image_keys", "point_cloud"}
+        layout = {"tokens_per_step", "token_feature_dim", "image_keys", "camera_poses", "point_cloud"}
         return tuple(f.name for f in fields(cls) if f.name not in layout)
