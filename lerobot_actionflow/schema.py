@@ -164,25 +164,34 @@ def _token_names(
     }
 
 
+IMAGE_STORAGES = ("image", "video")
+"""How a dataset stores camera frames: ``image``, each frame a PNG in the parquet files (decoded in
+microseconds at 80 px, read by LeRobot's streaming loader without FFmpeg); ``video``, AV1 video files (about
+a fifth of the size; decoding needs PyAV or torchcodec)."""
+
+
 def dataset_features(
     shapes: Mapping[str, tuple[int, ...]],
     token_names: Sequence[str] | None = None,
     scalar_names: Sequence[str] = (),
+    image_storage: str = "video",
 ) -> dict[str, dict]:
     """LeRobotDataset feature specs (``LeRobotDataset.create(features=...)``) of observations with these
-    shapes, plus the action. Cameras are stored as video.
+    shapes, plus the action. Cameras are stored as ``image_storage`` (:data:`IMAGE_STORAGES`).
 
     ``token_names`` (the env's ``token_names``: ``eef``, then its entities) and ``scalar_names`` (its task
     scalars) name the rows and columns of the token keys, so a dataset says which row is which object;
     without them those keys have ``names: None``. The LeRobot layout has no token keys: it ignores them, and
     its features are ``observation.state``, ``observation.images.<cam>`` and ``action``."""
+    if image_storage not in IMAGE_STORAGES:
+        raise ValueError(f"image_storage={image_storage!r}; expected one of {IMAGE_STORAGES}")
     names = dict(_NAMES)
     if token_names is not None and obs_layout(shapes) == "tokens":
         names |= _token_names(shapes, token_names, scalar_names)
     features = {}
     for env_key, shape in shapes.items():
         if _is_camera(env_key):
-            spec = {"dtype": "video", "shape": tuple(shape), "names": ["height", "width", "channels"]}
+            spec = {"dtype": image_storage, "shape": tuple(shape), "names": ["height", "width", "channels"]}
         else:
             spec = {"dtype": "float32", "shape": tuple(shape), "names": names.get(env_key)}
         features[policy_key(env_key)] = spec

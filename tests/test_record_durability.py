@@ -110,12 +110,19 @@ def test_workers_render_the_wrist_camera_as_this_process_does():
         np.testing.assert_array_equal(there.columns[key], here.columns[key], err_msg=key)
 
 
-def test_pixels_are_recorded_with_workers(tmp_path):
-    recipe = Recipe(task="Stack", variant="D0", episodes=2, repo_id="local/pxw", obs_mode="pixels")
+@pytest.mark.parametrize("image_storage", ["image", "video"])
+def test_pixels_are_recorded_with_workers(tmp_path, image_storage):
+    """Camera frames are stored as asked: PNG frames (the default) in data files kept small (each episode of
+    this one takes a new file), or video."""
+    recipe = Recipe(task="Stack", variant="D0", episodes=2, repo_id="local/pxw", obs_mode="pixels",
+                    image_storage=image_storage)  # fmt: skip
     result = record(recipe, root=tmp_path / "px", progress=False, workers=2)
     assert result.episodes == 2
     ds = LeRobotDataset("local/pxw", root=tmp_path / "px")
-    assert ds.meta.video_keys == ["observation.images.wrist"] and ds.num_episodes == 2
+    keys = ds.meta.image_keys if image_storage == "image" else ds.meta.video_keys
+    assert keys == ["observation.images.wrist"] and ds.num_episodes == 2
+    if image_storage == "image":
+        assert ds.meta.video_keys == [] and ds.meta.data_files_size_in_mb == 1
     image = ds[len(ds) - 1]["observation.images.wrist"]
     assert image.shape == (3, 84, 84) and 0 <= image.min() <= image.max() <= 1
 

@@ -107,7 +107,8 @@ def test_recorded_actions_replay_to_success(dataset):
 
 
 def test_wrist_camera_is_recorded_as_video(tmp_path):
-    recipe = Recipe(task="Stack", variant="D0", episodes=1, repo_id="local/px", obs_mode="pixels")
+    recipe = Recipe(task="Stack", variant="D0", episodes=1, repo_id="local/px", obs_mode="pixels",
+                    image_storage="video")  # fmt: skip
     record(recipe, root=tmp_path / "px", progress=False)
     ds = LeRobotDataset("local/px", root=tmp_path / "px")
     assert ds.meta.video_keys == ["observation.images.wrist"]

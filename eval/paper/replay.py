@@ -49,6 +49,19 @@ def replay_episode(env, seed: int, actions: np.ndarray) -> bool:
     return any(solved)
 
 
+def replay_shifted(env, seeds: list[int], actions: list[np.ndarray], offset_mm: float) -> list[bool]:
+    """Replay each episode's ``actions [T, 10]`` on ``env`` from its seed, every commanded position moved by
+    ``offset_mm`` along the world y axis, to +y in even episodes and to -y in odd ones; whether each was
+    solved. The one replay protocol: the dataset replay below and ``eval.diagnostics.lightbulb_fit`` (which
+    replays expert episodes it simulates) both run it."""
+    successes = []
+    for i, (seed, episode) in enumerate(zip(seeds, actions, strict=True)):
+        shifted = episode.copy()
+        shifted[:, 1] += (1 if i % 2 == 0 else -1) * offset_mm / 1000
+        successes.append(replay_episode(env, seed, shifted))
+    return successes
+
+
 def replay(root: Path, offset_mm: float) -> dict:
     from gym_actionflow.registry import make_env
 
@@ -61,11 +74,7 @@ def replay(root: Path, offset_mm: float) -> dict:
     env = make_env(recipe["task"], recipe["variant"], **recipe.get("env_kwargs", {}))
     actions = episodes_actions(root)
     seeds = log.kept_seeds[: len(actions)]  # the finalized episodes are the first kept seeds, in order
-    successes = []
-    for i, (seed, episode) in enumerate(zip(seeds, actions, strict=True)):
-        shifted = episode.copy()
-        shifted[:, 1] += (1 if i % 2 == 0 else -1) * offset_mm / 1000
-        successes.append(replay_episode(env, seed, shifted))
+    successes = replay_shifted(env, seeds, actions, offset_mm)
     env.close()
     return {"success": float(np.mean(successes)), "n": len(successes), "offset_mm": offset_mm, "seeds": seeds,
             "successes": successes}  # fmt: skip

@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> None:
     results = {}
     for eval_variant in recipe.eval_variants(variant):
         eval_dir = out / "eval" / eval_variant
-        run(eval_command(recipe, eval_variant, ckpt, eval_dir, env_kwargs=dataset.env_kwargs,
+        run(eval_command(recipe, eval_variant, ckpt, eval_dir, env_kwargs=dataset.eval_env_kwargs(),
                          episodes=args.eval_episodes))  # fmt: skip
         results[eval_variant] = json.loads((eval_dir / "eval_info.json").read_text())["overall"]
     timings["eval"] = time.time() - t

@@ -3,6 +3,7 @@ of a socket, push it down and turn it 67 degrees to lock it; then the bulb light
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -40,7 +41,8 @@ above the cap bottom; the gripper holds it there, between the pads (the TCP sits
 SOCKET_HEIGHT = 0.05
 """The socket floor is 5 cm above the table, on a pedestal."""
 CLEARANCE = 0.0015
-"""Total (diametral) clearance of the fits: the cap in the bore and a pin in its slot, 0.75 mm a side."""
+"""Total (diametral) clearance of the fits: the cap in the bore and a pin in its slot, 0.75 mm a side (the
+``"strict"`` socket fit, the default)."""
 BORE_RADIUS = CAP_RADIUS + CLEARANCE / 2
 SLOT_HALF_WIDTH = PIN_HALF[1] + CLEARANCE / 2
 """The bore (radius 11.75 mm) and the vertical entry slots (4.5 mm wide, parallel walls): a 1.5 mm offset of
@@ -63,6 +65,44 @@ _SLOT_ARC_START = np.deg2rad(16.0)
 _STOP_ARC_START = np.deg2rad(14.0)
 """Angles (from a slot's line / the end stop's line) where the round wall segments start: their corners then
 lie inside the slot-wall blocks, never in the slot."""
+
+
+@dataclass(frozen=True)
+class SocketFit:
+    """How loosely the socket takes the bulb: the total (diametral) ``clearance`` in metres, the same for the
+    cap in the bore and a pin in its slot (half of it a side). The rest of the socket (its outer radius,
+    where the channels run, the end stop) does not change with it."""
+
+    clearance: float
+
+    def __post_init__(self) -> None:
+        # A bulb pushed against one side of the bore must still have its other pin under the upper ring.
+        limit = PIN_CENTER + PIN_HALF[0] - CAP_RADIUS
+        if not 0.0 < self.clearance < limit:
+            raise ValueError(
+                f"SocketFit(clearance={self.clearance!r}); expected a total clearance in metres between 0 "
+                f"and {limit:g} (beyond it a pin can slip out from under the ring that locks it)"
+            )
+
+    @property
+    def bore_radius(self) -> float:
+        return CAP_RADIUS + self.clearance / 2
+
+    @property
+    def slot_half_width(self) -> float:
+        return PIN_HALF[1] + self.clearance / 2
+
+
+PAPER_CLEARANCE = 0.0025
+"""Total clearance of the ``"paper"`` fit, 1.25 mm a side (bore radius 12.25 mm, entry slots 5.5 mm wide):
+the clearance at which replaying the expert's demonstrations 1.5 mm off succeeds about half of the time, as
+on the paper's real robot (5 of 10). Measured 47 % with the socket fixed, against 9-12 % for ``"strict"``;
+the sweep of clearances is in ``eval/results/lightbulb_fit.md``."""
+SOCKET_FITS = {"strict": SocketFit(CLEARANCE), "paper": SocketFit(PAPER_CLEARANCE)}
+"""The socket's fit by the ``socket_fit`` keyword: ``strict`` (the default; 1.5 mm of clearance, which a
+1.5 mm offset of the insertion seldom passes) or ``paper``, which forgives it about half of the time, as the
+paper's real socket did. Only the bore and the entry slots widen; where the channels run, the end stop and
+the upper ring that holds the turned pins down stay as they are."""
 
 # ---------------------------------------------------------------- success
 SEAT_DEPTH_TOL = 0.002
@@ -126,19 +166,20 @@ def _add_box(body: mujoco.MjsBody, name: str, frame_angle: float, u: tuple[float
 
 
 def _add_arc(body: mujoco.MjsBody, name: str, start: float, end: float, z: tuple[float, float],
-             **kwargs) -> None:
-    """The round wall between the angles ``start`` and ``end``: boxes whose inner faces touch the bore and
-    whose outer corners meet."""
+             bore_radius: float, **kwargs) -> None:
+    """The round wall between the angles ``start`` and ``end``: boxes whose inner faces touch the bore (of
+    radius ``bore_radius``) and whose outer corners meet."""
     n = int(np.ceil((end - start) / _MAX_SEGMENT))
     span = (end - start) / n
     half_len = OUTER_RADIUS * np.tan(span / 2)
     for i in range(n):
         a = start + (i + 0.5) * span
-        _add_box(body, f"{name}{i}", a, (BORE_RADIUS, OUTER_RADIUS), (-half_len, half_len), z, **kwargs)
+        _add_box(body, f"{name}{i}", a, (bore_radius, OUTER_RADIUS), (-half_len, half_len), z, **kwargs)
 
 
-def add_socket(spec: mujoco.MjSpec) -> mujoco.MjsBody:
-    """The socket: a static body in the socket frame (see above), built from boxes and cylinders."""
+def add_socket(spec: mujoco.MjSpec, fit: SocketFit = SOCKET_FITS["strict"]) -> mujoco.MjsBody:
+    """The socket: a static body in the socket frame (see above), built from boxes and cylinders, its bore and
+    slots as wide as ``fit`` says."""
     body = spec.worldbody.add_body(name="socket", pos=(0.0, 0.0, TABLE_TOP + SOCKET_HEIGHT))
     wall = {"material": "socket_plastic", "friction": (0.3, 0.005, 0.0001), "solref": _STIFF}
     # The floor collides as a box (see add_bulb for why no cylinder) and is drawn as a disc.
@@ -150,26 +191,27 @@ def add_socket(spec: mujoco.MjSpec) -> mujoco.MjsBody:
     pedestal_half = 0.5 * (SOCKET_HEIGHT - 0.005)
     body.add_geom(name="socket_pedestal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=(0.03, pedestal_half),
                   pos=(0, 0, -0.005 - pedestal_half), material="socket_base")
-    cheek_u = (np.sqrt(BORE_RADIUS**2 - SLOT_HALF_WIDTH**2) + 0.0002, OUTER_RADIUS)
+    bore, slot_half = fit.bore_radius, fit.slot_half_width
+    cheek_u = (np.sqrt(bore**2 - slot_half**2) + 0.0002, OUTER_RADIUS)
     stop_half = PIN_HALF[1] + STOP_GAP
-    stop_u = (np.sqrt(BORE_RADIUS**2 - stop_half**2) + 0.0002, OUTER_RADIUS)
+    stop_u = (np.sqrt(bore**2 - stop_half**2) + 0.0002, OUTER_RADIUS)
     lower, upper, full = (0.0, CHANNEL_TOP), (CHANNEL_TOP, SOCKET_TOP), (0.0, SOCKET_TOP)
     for k in range(2):
         entry = k * np.pi
         # The slot's back wall (clockwise side) runs the full height: it is one wall of the vertical slot and
         # the closed end of the channel.
         _add_box(body, f"socket_slot{k}_back", entry, cheek_u,
-                 (-SLOT_HALF_WIDTH - 2 * _CHEEK, -SLOT_HALF_WIDTH), full, **wall)
+                 (-slot_half - 2 * _CHEEK, -slot_half), full, **wall)
         # Upper ring: the other slot wall, then the round wall up to the next slot's back wall.
         _add_box(body, f"socket_slot{k}_front", entry, cheek_u,
-                 (SLOT_HALF_WIDTH, SLOT_HALF_WIDTH + 2 * _CHEEK), upper, **wall)
+                 (slot_half, slot_half + 2 * _CHEEK), upper, **wall)
         _add_arc(body, f"socket_upper{k}_", entry + _SLOT_ARC_START, entry + np.pi - _SLOT_ARC_START, upper,
-                 **wall)
+                 bore, **wall)
         # Lower ring: the channel is open from the entry to the end stop at 67 degrees.
         _add_box(body, f"socket_stop{k}", entry + LOCK_ANGLE, stop_u, (stop_half, stop_half + 2 * _CHEEK),
                  lower, **wall)
         _add_arc(body, f"socket_lower{k}_", entry + LOCK_ANGLE + _STOP_ARC_START,
-                 entry + np.pi - _SLOT_ARC_START, lower, **wall)
+                 entry + np.pi - _SLOT_ARC_START, lower, bore, **wall)
     return body
 
 
@@ -217,6 +259,13 @@ class LightbulbEnv(ManipulationEnv):
     its slot, so a 1.5 mm lateral offset of the insertion pose lands the bulb on the rim, where it jams: the
     task needs millimetre accuracy. Once seated and locked the glass glows (an emissive material, visible in
     `render()` and the wrist camera).
+
+    `socket_fit="paper"` (default `"strict"`, the fits above) widens both fits to 2.5 mm of total clearance
+    (1.25 mm a side: bore radius 12.25 mm, entry slots 5.5 mm wide), calibrated on the paper's own
+    baseline: its real robot replayed its demonstrations 1.5 mm off with 5/10 success; replaying the
+    expert's demonstrations 1.5 mm off succeeds 47 % of the time on this fit with `socket_pose="fixed"`,
+    9-12 % on the strict one (unshifted replays are exact, 100 %, on both; `eval/results/lightbulb_fit.md`).
+    The observation, the success rule and the expert are the same on both fits.
 
     ## Observation
     | key | shape | content |
@@ -266,7 +315,7 @@ class LightbulbEnv(ManipulationEnv):
     Terminates on success (unless `terminate_on_success=False`); truncated after `max_episode_steps` (300).
 
     ## Version history
-    * v0: initial release. Added since, defaults unchanged: `socket_obs`, `socket_pose`.
+    * v0: initial release. Added since, defaults unchanged: `socket_obs`, `socket_pose`, `socket_fit`.
     """
 
     entity_names = ("bulb", "socket")
@@ -274,13 +323,19 @@ class LightbulbEnv(ManipulationEnv):
     task_description = "Insert the light bulb's pins into the socket, push it down and turn it to lock it."
     default_image_size = 80
 
-    def __init__(self, *args: Any, socket_obs: str = "pose", socket_pose: str = "any", **kwargs: Any) -> None:
-        """The base's arguments (positional ones too, as before), ``socket_obs`` and ``socket_pose``, keyword
-        only."""
+    def __init__(self, *args: Any, socket_obs: str = "pose", socket_pose: str = "any",
+                 socket_fit: str | SocketFit = "strict", **kwargs: Any) -> None:
+        """The base's arguments (positional ones too, as before), ``socket_obs``, ``socket_pose`` and
+        ``socket_fit``, keyword only. ``socket_fit`` is a name of ``SOCKET_FITS``, or a :class:`SocketFit`
+        itself, which measurements of candidate fits pass (``eval.diagnostics.lightbulb_fit``)."""
         check_choice("socket_obs", socket_obs, SOCKET_OBS, " ('none' leaves the socket to the wrist camera)")
         check_choice("socket_pose", socket_pose, tuple(SOCKET_POSES), " (the socket's layout)")
+        if not isinstance(socket_fit, SocketFit):
+            check_choice("socket_fit", socket_fit, tuple(SOCKET_FITS), " (the socket's clearance)")
+            socket_fit = SOCKET_FITS[socket_fit]
         self.socket_obs = socket_obs
         self.socket_region = SOCKET_POSES[socket_pose]
+        self.socket_fit = socket_fit
         if socket_obs == "none":
             self.entity_names = ("bulb",)
         super().__init__(*args, **kwargs)
@@ -296,7 +351,7 @@ class LightbulbEnv(ManipulationEnv):
         spec.add_material(name="bulb_metal", rgba=(0.72, 0.72, 0.75, 1.0), specular=0.8, shininess=0.8)
         spec.add_material(name="bulb_glass", rgba=GLASS_OFF, specular=0.6, shininess=0.9)
         spec.add_material(name="bulb_glass_lit", rgba=GLASS_ON, emission=1.0)
-        add_socket(spec)
+        add_socket(spec, self.socket_fit)
         add_bulb(spec)
 
     def _cache_refs(self) -> None:

@@ -40,6 +40,7 @@ PROG = "actionflow-record"
 FLAGS = {
     "task": "--task", "variant": "--variant", "episodes": "--episodes", "seed": "--seed", "noise": "--noise",
     "obs_mode": "--obs-mode", "obs_layout": "--obs-layout", "cameras": "--cameras", "repo_id": "--repo-id",
+    "image_storage": "--image-storage",
 }  # fmt: skip
 """Recipe field -> the flag that sets it, to name the flag in an error about its value."""
 INPUT_ERRORS = (ValueError, FileNotFoundError, FileExistsError, RuntimeError)
@@ -102,6 +103,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--cameras", nargs="+", metavar="CAMERA",
         help="with --obs-mode pixels: the cameras, from front (static) and wrist (default: wrist)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--image-storage", choices=("image", "video"),
+        help="with --obs-mode pixels: image (default: PNG frames in small parquet files, fast to train from "
+        "with --dataset.streaming=true) or video (AV1 files, about a fifth of the size)",
     )  # fmt: skip
     parser.add_argument(
         "--env-kwarg", action="append", type=_parse_env_kwarg, default=[], metavar="KEY=VALUE",

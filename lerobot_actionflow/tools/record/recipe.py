@@ -41,13 +41,17 @@ class Recipe:
     noise: float = 1.0
     """Expert noise (0: deterministic waypoints; 1: the suite's standard demonstration noise)."""
     obs_mode: str = "state"
-    """``state`` (no image) or ``pixels`` (adds the cameras, stored as video)."""
+    """``state`` (no image) or ``pixels`` (adds the cameras, stored as ``image_storage``)."""
     obs_layout: str = "tokens"
     """``tokens`` (token keys, ``observation.state``, object poses) or ``lerobot`` (``observation.state`` and
     ``observation.images.*`` only: a plain LeRobot dataset; needs ``obs_mode = "pixels"``)."""
     cameras: list[str] | None = None
     """With ``obs_mode = "pixels"``: the cameras, from ``front`` (static) and ``wrist``; None = the wrist
     camera."""
+    image_storage: str = "image"
+    """With ``obs_mode = "pixels"``: ``image`` (each frame a PNG in the parquet data files, which are kept
+    small so that LeRobot's streaming loader interleaves many of them) or ``video`` (AV1 files, about a fifth
+    of the size, decoded at every sample)."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     """Further ``gym.make`` keyword arguments (e.g. ``hanger_obs = "point_cloud"``)."""
 
@@ -56,6 +60,13 @@ class Recipe:
     def __post_init__(self) -> None:
         check_fields({f.name: getattr(self, f.name) for f in fields(self)})
         self.noise = float(self.noise)
+
+    def eval_env_kwargs(self) -> dict[str, Any]:
+        """The env settings an evaluation of a policy trained on this recording needs (``lerobot-eval
+        --env.<key>=<value>``): the observation mode, layout and cameras it recorded, and its env keywords."""
+        observation = {"obs_mode": self.obs_mode, "obs_layout": self.obs_layout, "cameras": self.cameras}
+        defaults = {"obs_mode": "state", "obs_layout": "tokens", "cameras": None}
+        return {k: v for k, v in observation.items() if v != defaults[k]} | dict(self.env_kwargs)
 
     def command(self) -> str:
         """The ``actionflow-record`` command line that reproduces this dataset."""
@@ -67,6 +78,8 @@ class Recipe:
             args += ["--obs-layout", self.obs_layout]
         if self.cameras is not None:
             args += ["--cameras", *self.cameras]
+        if self.obs_mode == "pixels" and self.image_storage != "image":
+            args += ["--image-storage", self.image_storage]
         for key, value in self.env_kwargs.items():
             args += ["--env-kwarg", f"{key}={value}"]
         return shlex.join([*args, "--repo-id", self.repo_id])
@@ -125,6 +138,8 @@ def check_fields(values: Mapping[str, Any], label: Label = str) -> None:
     from gym_actionflow.registry import CAMERAS, OBS_LAYOUTS, OBS_MODES, check_observation
     from huggingface_hub.utils import validate_repo_id
 
+    from lerobot_actionflow.schema import IMAGE_STORAGES
+
     def fail(key: str, expected: str) -> None:
         raise ValueError(f"{label(key)}: got {values[key]!r}; expected {expected}")
 
@@ -149,6 +164,8 @@ def check_fields(values: Mapping[str, Any], label: Label = str) -> None:
             fail("noise", "a finite number >= 0 (0: deterministic expert, 1: the standard noise)")
     if "obs_mode" in values and values["obs_mode"] not in OBS_MODES:
         fail("obs_mode", f"one of {OBS_MODES} ('pixels' adds the cameras)")
+    if "image_storage" in values and values["image_storage"] not in IMAGE_STORAGES:
+        fail("image_storage", f"one of {IMAGE_STORAGES} (how camera frames are stored)")
     if "obs_layout" in values and values["obs_layout"] not in OBS_LAYOUTS:
         fail("obs_layout", f"one of {OBS_LAYOUTS} ('lerobot': observation.state and the cameras only)")
     cameras = values.get("cameras")
