@@ -85,7 +85,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"# {recipe.task}: lerobot_actionflow/recipes/{snake(recipe.task)}.toml")
     for line in recipe.notes.splitlines():
         print(f"#   {line}")
-    print("\n".join(commands(recipe, shlex.split(record.command()), record.repo_id, record.eval_env_kwargs(), out)))
+    record_argv = shlex.split(record.command())
+    print("\n".join(commands(recipe, record_argv, record.repo_id, record.eval_env_kwargs(), out)))
     sys.stdout.flush()
 
 
