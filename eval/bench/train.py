@@ -51,6 +51,9 @@ class Setting:
     threads: int
     """OMP_NUM_THREADS of the lerobot-train process (and so of its loader workers)."""
     note: str
+    dataset: str = "tokens"
+    """Which benchmark dataset it trains on (``DATASETS``): Stack D0's pose tokens, or its wrist camera's
+    frames stored as video or as PNG images in the parquet files."""
 
 
 SETTINGS = {
@@ -82,6 +85,41 @@ SETTINGS = {
     ]
 }
 
+DATASETS = {
+    "tokens": (),
+    "video": ("--obs-mode", "pixels", "--image-storage", "video"),
+    "image": ("--obs-mode", "pixels", "--image-storage", "image"),
+}
+"""The ``actionflow-record`` flags of each benchmark dataset beyond the Stack D0 recording: pose tokens; the
+wrist camera (80 px) as AV1/H.264 video (LeRobot's default, before) or as PNG frames in the parquet files."""
+
+
+def _camera_settings() -> list[Setting]:
+    """Image training before and after the lean image path, per encoder. Before: the frames as video, the
+    map-style dataset with 2 loader workers, the images of both observation steps encoded
+    (``image_history=null``, the old behaviour). After: PNG frames in the parquet files, LeRobot's streaming
+    dataset with 1 loader worker, only the current step's image encoded (``image_history=1``, the default).
+    The middle settings change one thing at a time."""
+    out = []
+    stream, every = ("--dataset.streaming=true", "--num_workers=1"), "--policy.image_history=null"
+    for enc in ("cnn", "resnet18"):
+        policy = (f"--policy.image_encoder={enc}",)
+        out += [
+            Setting(f"cam_before_{enc}", ("--num_workers=2", *policy, "--policy.image_history=null"), 1,
+                    f"{enc}, video frames, map-style, 2 workers, every step's image encoded", "video"),
+            Setting(f"cam_png_map_{enc}", ("--num_workers=2", *policy, "--policy.image_history=null"), 1,
+                    f"{enc}, PNG frames, map-style, 2 workers, every step's image encoded", "image"),
+            Setting(f"cam_png_stream_{enc}",
+                    (*stream, *policy, every), 1,
+                    f"{enc}, PNG frames, streaming, 1 worker, every step's image encoded", "image"),
+            Setting(f"cam_after_{enc}", (*stream, *policy), 1,
+                    f"{enc}, PNG frames, streaming, 1 worker, the current image only (defaults)", "image"),
+        ]  # fmt: skip
+    return out
+
+
+SETTINGS.update({s.name: s for s in _camera_settings()})
+
 
 @dataclass
 class Run:
@@ -96,21 +134,33 @@ class Run:
         return statistics.fmean(w[i] for w in self.windows)
 
 
-def ensure_dataset(root: Path, repo_id: str, episodes: int) -> None:
-    """Record the benchmark dataset once (the main job's recording command) unless it is already there."""
+def dataset_of(args: argparse.Namespace, kind: str) -> tuple[str, Path]:
+    """The repo id and root of the benchmark dataset ``kind`` (a key of ``DATASETS``)."""
+    if kind == "tokens":
+        name = f"stack_d0_{args.episodes}"
+    else:
+        name = f"stack_d0_wrist_{kind}_{args.camera_episodes}"
+    return f"local/{name}", args.work / name
+
+
+def ensure_dataset(root: Path, repo_id: str, episodes: int, kind: str = "tokens") -> None:
+    """Record the benchmark dataset once (the main job's recording command, with the flags of ``kind``)
+    unless it is already there."""
     if (root / "meta" / "info.json").exists():
         return
     cmd = [cli("actionflow-record"), "--task", "Stack", "--variant", "D0", "--episodes", str(episodes),
-           "--seed", "0", "--noise", "1", "--repo-id", repo_id, "--root", str(root), "--quiet"]  # fmt: skip
+           "--seed", "0", "--noise", "1", *DATASETS[kind], "--repo-id", repo_id, "--root", str(root),
+           "--quiet"]  # fmt: skip
     print("$ " + " ".join(cmd), flush=True)
     subprocess.run(cmd, check=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
 
 
 def train_command(setting: Setting, args: argparse.Namespace, out: Path) -> list[str]:
     """The main job's lerobot-train command (the config's defaults) with the setting's loader flags."""
+    repo_id, root = dataset_of(args, setting.dataset)
     return [
         cli("lerobot-train"), "--policy.type=actionflow", "--policy.device=cpu", "--policy.push_to_hub=false",
-        f"--dataset.repo_id={args.repo_id}", f"--dataset.root={args.dataset}",
+        f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
         f"--steps={args.steps}", f"--batch_size={args.batch_size}", *setting.flags,
         "--save_checkpoint=false", f"--log_freq={args.log_freq}", "--seed=1", f"--output_dir={out}",
     ]  # fmt: skip
@@ -225,12 +275,15 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    token_settings = [name for name, s in SETTINGS.items() if s.dataset == "tokens"]
+    parser.add_argument("--settings", nargs="+", default=token_settings, choices=list(SETTINGS),
+                        help="default: the pose-token ones; cam_* train from the wrist camera")  # fmt: skip
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--log-freq", type=int, default=50)
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--rounds", type=int, default=1, help="runs per setting, interleaved")
-    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--episodes", type=int, default=100, help="episodes of the pose-token dataset")
+    parser.add_argument("--camera-episodes", type=int, default=30, help="episodes of the camera datasets")
     parser.add_argument("--work", type=Path, default=Path("outputs/bench_train"))
     parser.add_argument("--shuffle", action="store_true", help="also measure each loader's episode mix")
     parser.add_argument("--shuffle-batches", type=int, default=100)
@@ -238,10 +291,11 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.steps < 3 * args.log_freq:
         parser.error(f"--steps {args.steps} < 3 x --log-freq {args.log_freq}: too few windows to time")
-    args.repo_id = f"local/stack_d0_{args.episodes}"
-    args.dataset = args.work / f"stack_d0_{args.episodes}"
+    args.repo_id, args.dataset = dataset_of(args, "tokens")
     (args.work / "logs").mkdir(parents=True, exist_ok=True)
-    ensure_dataset(args.dataset, args.repo_id, args.episodes)
+    for kind in dict.fromkeys(SETTINGS[name].dataset for name in args.settings):
+        repo_id, root = dataset_of(args, kind)
+        ensure_dataset(root, repo_id, args.episodes if kind == "tokens" else args.camera_episodes, kind)
 
     runs = []
     for r in range(args.rounds):
@@ -258,7 +312,20 @@ def main(argv: list[str] | None = None) -> None:
 
     table = summarise(runs, args)
     given = sys.argv[1:] if argv is None else argv
-    base = table.get("before", {}).get("samples_s")
+
+    def base_of(name: str) -> float | None:
+        """samples/s of the row this one is compared to: its encoder's cam_before, or before."""
+        before = f"cam_before_{name.rsplit('_', 1)[1]}" if name.startswith("cam_") else "before"
+        return table.get(before, {}).get("samples_s")
+
+    cameras = any(SETTINGS[name].dataset != "tokens" for name in table)
+    camera_text = (
+        f" The cam_* rows train on Stack D0's wrist camera, {args.camera_episodes} episodes recorded with "
+        "`--obs-mode pixels` and `--image-storage video` or `image` (80 px, pose tokens beside the image), "
+        "and compare with their encoder's cam_before row."
+        if cameras
+        else ""
+    )
     lines = [
         f"# lerobot-train throughput, ActionFlow on CPU ({platform.processor() or 'CPU'}, "
         f"{os.cpu_count()} cores)",
@@ -271,12 +338,13 @@ def main(argv: list[str] | None = None) -> None:
         "averaged over its "
         f"{args.log_freq}-step log windows after the first. samples/s is wall clock over the kept windows "
         "(mean, min-max over rounds). The machine's cores were shared with other jobs: compare rows, not "
-        "absolute figures.",
+        "absolute figures." + camera_text,
         "",
         "| setting | data_s | updt_s | data wait | samples/s | vs before | LeRobot smp/s | run s |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for name, row in table.items():
+        base = base_of(name)
         speedup = f"{row['samples_s'] / base:.2f}x" if base else "-"
         lines.append(
             f"| `{name}`: {SETTINGS[name].note} | {row['data_s']:.3f} | {row['updt_s']:.3f} | "
