@@ -340,3 +340,19 @@ def test_recording_the_lerobot_recipe_gives_a_plain_lerobot_dataset_with_the_cam
         np.testing.assert_allclose(parsed[camera][1:4], pose.position, atol=1e-6)
         np.testing.assert_allclose(parsed[camera][4:], pose.quaternion(), atol=1e-6)
         assert info["camera.fovy_degrees"] == pose.fovy
+
+    # What a camera saw: eval.diagnostics.camera_view lays the episode's frames side by side, pixel for pixel.
+    from PIL import Image
+
+    from eval.diagnostics.camera_view import main as camera_view
+
+    out = tmp_path / "view.png"
+    camera_view(["--root", str(root), "--camera", "wrist", "--episode", "1", "--frames", "3", "--scale", "2",
+                 "--out", str(out)])  # fmt: skip
+    strip = np.asarray(Image.open(out))
+    assert strip.shape == (160, 480, 3)
+    first = ds[int(ds.meta.episodes["dataset_from_index"][1])]["observation.images.wrist"]
+    expected = (first.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+    np.testing.assert_array_equal(strip[::2, ::2][:, :80], expected)
+    with pytest.raises(SystemExit, match="observation.images.side.*'front', 'wrist'"):
+        camera_view(["--root", str(root), "--camera", "side", "--out", str(out)])

@@ -20,7 +20,8 @@ MODULES = [
     "eval.paper.__main__", "eval.paper.plan", "eval.paper.profiles", "eval.paper.commands", "eval.paper.run",
     "eval.paper.report", "eval.paper.replay", "eval.bench.latency", "eval.bench.envs", "eval.bench.record",
     "eval.bench.train", "eval.bench.delay", "eval.diagnostics.mug_trace", "eval.diagnostics.mug_layouts",
-    "eval.diagnostics.open_loop",
+    "eval.diagnostics.open_loop", "eval.diagnostics.lightbulb_fit", "eval.diagnostics.camera_view",
+    "eval.bench.render", "eval.bench.camera_latency",
 ]  # fmt: skip
 MACHINE_PATH = re.compile(r"(/work/|/home/|/root/|/tmp/)")
 

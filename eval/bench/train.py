@@ -319,6 +319,12 @@ def main(argv: list[str] | None = None) -> None:
         return table.get(before, {}).get("samples_s")
 
     cameras = any(SETTINGS[name].dataset != "tokens" for name in table)
+    tokens_text = (
+        f"Stack D0, {args.episodes} episodes (`actionflow-record --task Stack --variant D0 --episodes "
+        f"{args.episodes} --seed 0 --noise 1`), "
+        if any(SETTINGS[name].dataset == "tokens" for name in table)
+        else ""
+    )
     camera_text = (
         f" The cam_* rows train on Stack D0's wrist camera, {args.camera_episodes} episodes recorded with "
         "`--obs-mode pixels` and `--image-storage video` or `image` (80 px, pose tokens beside the image), "
@@ -332,8 +338,7 @@ def main(argv: list[str] | None = None) -> None:
         "",
         f"`{portable_command(['python', '-m', 'eval.bench.train', *given])}`",
         "",
-        f"Stack D0, {args.episodes} episodes (`actionflow-record --task Stack --variant D0 --episodes "
-        f"{args.episodes} --seed 0 --noise 1`), batch {args.batch_size}, default model, "
+        tokens_text + f"batch {args.batch_size}, default model, "
         f"{args.steps} steps per run, {args.rounds} interleaved round(s); LeRobot's `data_s` / `updt_s` "
         "averaged over its "
         f"{args.log_freq}-step log windows after the first. samples/s is wall clock over the kept windows "
