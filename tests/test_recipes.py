@@ -103,15 +103,26 @@ def test_actionflow_recipe_refuses_bad_input_with_exit_2(capsys):
 def test_every_dataset_recipe_carries_its_tasks_training(tmp_path, capsys):
     """Each datasets/*.toml reads as one recipe: what to record plus its task's training and evaluation; a
     [train] table in the file overrides the task's, and `actionflow-recipe FILE` prints it."""
+    import tomllib
     from pathlib import Path
 
     from lerobot_actionflow.recipes.dataset import load_dataset_recipe
 
     files = sorted((Path(__file__).resolve().parents[1] / "datasets").glob("*.toml"))
     assert files
+    overriding = []
     for path in files:
         dataset = load_dataset_recipe(path)
-        assert dataset.recipe == task_recipe(dataset.record.task), path.name  # none overrides today
+        tables = tomllib.loads(path.read_text())
+        if "train" not in tables and "eval" not in tables:
+            assert dataset.recipe == task_recipe(dataset.record.task), path.name
+            continue
+        overriding.append(path.name)
+        assert dataset.recipe != task_recipe(dataset.record.task), path.name
+        for key, value in tables.get("train", {}).items():
+            assert getattr(dataset.recipe.train, key) == value, (path.name, key)
+    # The camera recipes train streamed (eval/results/cameras.md); every other one is its task's.
+    assert overriding == ["lightbulb_rgb_paper_fixed_100.toml", "lightbulb_rgb_socket_paper_fixed_100.toml"]
     own = tmp_path / "mug_short.toml"
     own.write_text(
         'task = "MugHanging"\nvariant = "train"\nepisodes = 5\nrepo_id = "local/mug_short"\n'
