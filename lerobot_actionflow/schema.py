@@ -165,9 +165,9 @@ def _token_names(
 
 
 IMAGE_STORAGES = ("image", "video")
-"""How a dataset stores camera frames: ``image``, each frame a PNG in the parquet files (decoded in
-microseconds at 80 px, read by LeRobot's streaming loader without FFmpeg); ``video``, AV1 video files (about
-a fifth of the size; decoding needs PyAV or torchcodec)."""
+"""How a dataset stores camera frames: ``image``, each frame a PNG in the parquet files (read by
+LeRobot's streaming loader without FFmpeg); ``video``, AV1 video files (smaller; decoding needs PyAV or
+torchcodec)."""
 
 
 def dataset_features(

@@ -105,9 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --obs-mode pixels: the cameras, from front (static) and wrist (default: wrist)",
     )  # fmt: skip
     parser.add_argument(
-        "--image-storage", choices=("image", "video"),
+        "--image-storage", choices=("image", "video"),  # schema.IMAGE_STORAGES (imports torch)
         help="with --obs-mode pixels: image (default: PNG frames in small parquet files, fast to train from "
-        "with --dataset.streaming=true) or video (AV1 files, about a fifth of the size)",
+        "with --dataset.streaming=true) or video (smaller AV1 files, decoded at every sample)",
     )  # fmt: skip
     parser.add_argument(
         "--env-kwarg", action="append", type=_parse_env_kwarg, default=[], metavar="KEY=VALUE",

@@ -50,8 +50,8 @@ class Recipe:
     camera."""
     image_storage: str = "image"
     """With ``obs_mode = "pixels"``: ``image`` (each frame a PNG in the parquet data files, which are kept
-    small so that LeRobot's streaming loader interleaves many of them) or ``video`` (AV1 files, about a fifth
-    of the size, decoded at every sample)."""
+    small so that LeRobot's streaming loader interleaves many of them) or ``video`` (smaller AV1 files,
+    decoded at every sample)."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     """Further ``gym.make`` keyword arguments (e.g. ``hanger_obs = "point_cloud"``)."""
 
@@ -64,8 +64,8 @@ class Recipe:
     def eval_env_kwargs(self) -> dict[str, Any]:
         """The env settings an evaluation of a policy trained on this recording needs (``lerobot-eval
         --env.<key>=<value>``): the observation mode, layout and cameras it recorded, and its env keywords."""
-        observation = {"obs_mode": self.obs_mode, "obs_layout": self.obs_layout, "cameras": self.cameras}
-        defaults = {"obs_mode": "state", "obs_layout": "tokens", "cameras": None}
+        defaults = {f.name: f.default for f in fields(self)}
+        observation = {k: getattr(self, k) for k in ("obs_mode", "obs_layout", "cameras")}
         return {k: v for k, v in observation.items() if v != defaults[k]} | dict(self.env_kwargs)
 
     def command(self) -> str:

@@ -104,10 +104,6 @@ IMAGE_DATA_FILE_MB = 1
 shuffle buffer)."""
 
 
-def _stores_images(features: dict[str, dict]) -> bool:
-    return any(f["dtype"] == "image" for f in features.values())
-
-
 def check_root(root: Path) -> None:
     """Fail before anything is written if the dataset folder could not be created at ``root``: its nearest
     existing folder must let us create a folder in it (tried, and removed at once: permission bits do not
@@ -156,7 +152,8 @@ def _open_dataset(recipe: Recipe, root: Path, features: dict):
             root=root,
             robot_type="franka_panda",
             use_videos=any(f["dtype"] == "video" for f in features.values()),
-            data_files_size_in_mb=IMAGE_DATA_FILE_MB if _stores_images(features) else None,
+            data_files_size_in_mb=IMAGE_DATA_FILE_MB if any(f["dtype"] == "image" for f in features.values())
+            else None,
         )
         log.save(root)
     snapshot(root)
