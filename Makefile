@@ -18,7 +18,7 @@ $(VENV)/.installed: pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "Python 3.12 not found: install it or run 'make PYTHON312=/path/to/python3.12'"; exit 1; }
 	test -x $(PY) || $(PYTHON312) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test,robosuite]"
+	$(PY) -m pip install --quiet -e ".[test,robosuite,ray]"
 	$(PY) -m pip install --quiet --no-deps "$(ROBOSUITE)"
 	touch $@
 

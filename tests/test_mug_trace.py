@@ -3,6 +3,7 @@ its script puts the insertion start."""
 
 import gymnasium as gym
 import numpy as np
+import pytest
 from gym_actionflow.tasks.mug_hanging import PEG_DIRECTION, PEG_TIP
 
 from eval.diagnostics import mug_trace
@@ -34,3 +35,12 @@ def test_lined_up_is_the_first_lifted_step_near_the_peg_plane():
     path = np.array([[0.3, 0.0, 0.04], [0.25, 0.2, 0.2], [0.2, 0.005, 0.3], [0.15, 0.0, 0.3]])
     np.testing.assert_array_equal(mug_trace.lined_up(path), path[2])  # not the start, on the table
     assert mug_trace.lined_up(path[:2]) is None
+
+
+def test_the_diagnosis_refuses_the_held_out_layouts(capsys):
+    """What a diagnosis shows shapes the next setting: held-out seeds (from 200000) are refused by name
+    before any checkpoint is loaded."""
+    with pytest.raises(SystemExit):
+        mug_trace.main(["no_checkpoint_needed", "--seeds", "100003", "200001"])
+    err = capsys.readouterr().err
+    assert "seeds [200001] are held-out layouts" in err and "100000-199999" in err

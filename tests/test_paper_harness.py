@@ -14,10 +14,11 @@ import pytest
 
 from eval.paper import run as paper_run
 from eval.paper.__main__ import main as harness
-from eval.paper.commands import EVAL_SEED, check_disjoint, check_plan, eval_seeds
+from eval.paper.commands import check_disjoint, check_plan, eval_seeds
 from eval.paper.plan import EXPERIMENTS, Dataset, Paths, build
 from eval.paper.profiles import PROFILES, SMOKE
 from eval.provenance import PACKAGES
+from lerobot_actionflow.recipes import EVAL_SEED, LAYOUTS
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -62,13 +63,14 @@ def test_a_tiny_cell_of_each_experiment_writes_json_table_and_plot(smoke, experi
         assert "lerobot-train --policy.type=actionflow" in cell["commands"]["train"]
         assert ".partial" not in cell["commands"]["train"]  # the command a user reruns: the final folder
         assert (
-            "lerobot-eval" in cell["commands"]["eval"] and f"--seed={EVAL_SEED}" in cell["commands"]["eval"]
-        )
+            "lerobot-eval" in cell["commands"]["eval"] and "--seed=200000" in cell["commands"]["eval"]
+        )  # the harness's default: the held-out layouts
+        assert cell["layouts"] == "heldout" and cell["eval_seeds"][0] == LAYOUTS["heldout"] == 200_000
         assert cell["eval_seeds"][0] > cell["record_seeds"][1]
     table = (paths.results / f"smoke_{experiment}.md").read_text()
     assert "python -m eval.paper report --profile smoke --results-dir results" in table
     assert "| model |" in table
-    assert "Commits of the cells: `" in table and "before provenance" not in table
+    assert "Commits of the cells: `" in table and "before cells recorded their commit" not in table
     assert all(c["group"] in table for c in cells)
     png = paths.results / f"smoke_{experiment}.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
@@ -181,17 +183,19 @@ def test_an_interrupted_training_starts_again_from_nothing(tmp_path, monkeypatch
 
 
 def test_evaluation_seeds_never_overlap_recording_seeds():
-    """Every profile's plan keeps the evaluated layouts (lerobot-eval --seed=100000, whole batches) apart
-    from any seed its recordings may try; an overlap is a clear error before anything runs."""
+    """Every profile's plan keeps the evaluated layouts (lerobot-eval --seed=200000 or 100000, whole
+    batches) apart from any seed its recordings may try; an overlap is a clear error before anything runs."""
     for profile in PROFILES.values():
         for experiment in EXPERIMENTS:
-            check_plan(build(experiment, profile))
+            for layouts in LAYOUTS:
+                check_plan(build(experiment, profile, layouts=layouts))
+    assert eval_seeds(50, 10, "heldout") == range(200_000, 200_050)
     assert eval_seeds(50, 10) == range(EVAL_SEED, EVAL_SEED + 50)
     assert eval_seeds(5, 10) == range(EVAL_SEED, EVAL_SEED + 10)  # the last batch's extra envs count
     with pytest.raises(ValueError, match=r"seeds \[100000, 100001\] are both recorded and evaluated"):
         check_disjoint([7, 100_000, 100_001], eval_seeds(2, 2), "cell")
     cell = build("sample-efficiency", SMOKE)[0]
-    late = Dataset("Stack", "D0", 2, seed=EVAL_SEED - 3)
+    late = Dataset("Stack", "D0", 2, seed=LAYOUTS["heldout"] - 3)  # the smoke plan: held-out layouts
     with pytest.raises(ValueError, match="record from a lower --seed"):
         check_plan([replace(cell, dataset=late)])
 
@@ -375,3 +379,153 @@ def test_variants_pick_groups_by_their_training_variant():
     assert {c.dataset.variant for c in both} == {"D0", "D2"}
     with pytest.raises(ValueError, match=r"--variants \['D1'\]: no such group .* for Threading"):
         build("sample-efficiency", cpu, ["Threading"], variants=["D1"])
+
+
+# ---------------------------------------------------------------------------- the Ray executor
+def _ray_env(monkeypatch, root: Path) -> None:
+    monkeypatch.chdir(root)
+    monkeypatch.setenv("HF_LEROBOT_HOME", str(root / "hf_lerobot"))
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")  # a local Ray for one test: no token file in $HOME
+    # Ray's workers import the stages (eval.paper.executor) from the repository, as the replay does.
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
+
+
+def test_the_smoke_plan_through_a_local_ray_of_two_lanes_writes_the_local_json(smoke, tmp_path, monkeypatch):
+    """``--executor ray --lanes 2`` runs the same stages as Ray tasks (Ray is the ``ray`` extra, installed by
+    ``make test``): the same cells with the same commands as the local run; a finished cell is not scheduled
+    again; a stage that fails fails its cell by key, not the others."""
+    from eval.paper.executor import run_ray
+
+    local_paths, _ = smoke
+    _ray_env(monkeypatch, tmp_path)
+    argv = ["sample-efficiency", "--profile", "smoke", "--work-dir", "work", "--results-dir", "results",
+            "--executor", "ray", "--lanes", "2"]  # fmt: skip
+    harness(argv)
+    paths = Paths(Path("work"), Path("results"))
+
+    def cells(where: Paths) -> dict[str, dict]:
+        files = where.cells("smoke", "sample-efficiency").glob("*.json")
+        return {p.name: json.loads(p.read_text()) for p in files}
+
+    local, ray_cells = cells(local_paths), cells(paths)
+    assert set(ray_cells) == set(local) and ray_cells
+    for name, cell in ray_cells.items():
+        assert cell["commands"] == local[name]["commands"]  # the same relative paths, the same flags
+        assert cell["harness_command"].endswith("--executor ray --lanes 2")
+        assert len(cell["provenance"]["commit"]) == 40 and str(tmp_path) not in json.dumps(cell)
+        assert 0.0 <= cell["success"] <= 1.0
+    assert (paths.results / "smoke_sample-efficiency.md").is_file()
+
+    # A finished cell is read back, a broken one (its recording cannot start) fails by its key.
+    cell = build("sample-efficiency", SMOKE)[0]
+    broken = replace(cell, dataset=replace(cell.dataset, env_kwargs=(("no_such_option", "1"),)))
+    broken = replace(broken, training=replace(cell.training, dataset=broken.dataset))
+    finished = paths.cell(cell).stat().st_mtime_ns
+    with pytest.raises(RuntimeError, match=r"1 of 2 cells failed:\n" + broken.key):
+        run_ray([cell, broken], paths, workers=1, harness_command="test", lanes=2)
+    assert paths.cell(cell).stat().st_mtime_ns == finished and not paths.cell(broken).exists()
+
+
+def test_the_executor_flags_are_checked_and_a_dry_run_spreads_the_plan_over_lanes(capsys):
+    """``--address``/``--lanes`` without Ray, or zero lanes, are refused by name; ``--dry-run --executor ray
+    --lanes N`` says what the busiest lane trains (longest trainings first onto the least loaded lane)."""
+    from eval.paper.executor import plan_lanes
+
+    for bad in (["--lanes", "2"], ["--address", "head:6379"], ["--executor", "ray", "--lanes", "0"]):
+        with pytest.raises(SystemExit):
+            harness(["sample-efficiency", "--profile", "smoke", "--dry-run", *bad])
+        assert bad[-2] in capsys.readouterr().err
+    cells = build("sample-efficiency", PROFILES["cpu"], tasks=["Coffee"])
+    steps = sorted((t.steps for t in {c.training for c in cells}), reverse=True)
+    text = plan_lanes(cells, 2)
+    assert f"{len(steps)} trainings" in text and f"of {sum(steps)} in all" in text
+    busiest = int(text.split("busiest lane trains ")[1].split()[0])
+    assert sum(steps) / 2 <= busiest <= sum(steps) / 2 + steps[0]
+    harness(["sample-efficiency", "--profile", "gpu", "--dry-run", "--executor", "ray", "--lanes", "8"])
+    assert "on 8 lanes (cuda)" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------------- held-out layouts
+def test_held_out_cells_share_the_development_training_and_dev_cells_keep_their_keys():
+    """A held-out cell evaluates the same training as its development twin (re-evaluating costs evaluations
+    only) on seeds from 200000; the committed development cells keep the keys they were run under, so the
+    harness still finds them finished."""
+    for experiment in EXPERIMENTS:
+        heldout = build(experiment, PROFILES["cpu"])
+        dev = build(experiment, PROFILES["cpu"], layouts="dev")
+        assert [c.training for c in heldout] == [c.training for c in dev]
+        trained = [(h, d) for h, d in zip(heldout, dev, strict=True) if h.training is not None]
+        assert all(h.key != d.key and "_heldout_" in h.key for h, d in trained)
+        committed = {p.stem for p in (REPO / "eval/results/paper/cells/cpu" / experiment).glob("*.json")}
+        assert committed and committed <= {c.key for c in dev}
+        cell = trained[0][0]
+        ckpt = Path("ckpt")
+        from eval.paper.commands import eval_command
+
+        assert "--seed=200000" in eval_command(cell, ckpt, Path("o"))
+        assert "--seed=100000" in eval_command(replace(cell, layouts="dev"), ckpt, Path("o"))
+    with pytest.raises(ValueError, match="layouts 'test'"):
+        build("sample-efficiency", SMOKE, layouts="test")
+
+
+def test_development_cells_are_refused_into_the_committed_results(capsys):
+    """Tuning on the development layouts and writing the cells into eval/results/paper would publish a
+    tuned number: the harness refuses before running anything, and says what to do instead."""
+    with pytest.raises(SystemExit):
+        harness(["sample-efficiency", "--profile", "smoke", "--layouts", "dev", "--results-dir",
+                 str(REPO / "eval/results/paper")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert "--layouts dev" in err and "--layouts heldout" in err
+
+
+def test_the_report_lists_development_cells_apart_and_says_when_it_has_no_held_out_cell(smoke, tmp_path):
+    """Held-out cells make the tables; development ones go to their own section, never pooled as another
+    seed. With development cells only, the head says every number is on the tuning layouts."""
+    import shutil
+
+    from eval.paper.report import write
+
+    paths, _ = smoke
+    cells_dir = tmp_path / "cells" / "smoke" / "generalisation"
+    shutil.copytree(paths.cells("smoke", "generalisation"), cells_dir)
+    trained = next(cells_dir.glob("*__A.1__train_heldout_*.json"))
+    dev = dict(json.loads(trained.read_text()), success=0.123, layouts="dev", eval_seeds=[100_000, 100_000])
+    (cells_dir / "dev.json").write_text(json.dumps(dev))
+    write(tmp_path, "smoke", "generalisation", "python -m eval.paper report --profile smoke")
+    table = (tmp_path / "smoke_generalisation.md").read_text()
+    head, section = table.split("## Development layouts (seeds from 100000): tuning, not a result")
+    assert "12%" not in head and "seeds)" not in head and "Development layouts only" not in head
+    assert "12% of 1" in section.split("## Wall time per cell")[0]
+    for file in cells_dir.glob("*.json"):  # now development cells only (and the replays)
+        cell = json.loads(file.read_text())
+        if cell.get("eval_seeds"):
+            file.write_text(json.dumps(dict(cell, eval_seeds=[100_000, 100_000])))
+    write(tmp_path, "smoke", "generalisation", "python -m eval.paper report --profile smoke")
+    table = (tmp_path / "smoke_generalisation.md").read_text()
+    assert "**Development layouts only.**" in table and "## Development layouts (seeds" not in table
+
+
+def test_every_committed_cell_names_its_commit_and_no_machine_path():
+    """A committed cell says which code made it: the commit it ran at, or, for a cell run before cells
+    recorded provenance, the first commit that held its result; none holds a path of the machine that ran
+    it."""
+    import re
+
+    from eval.paper.report import commits_line
+
+    files = sorted((REPO / "eval/results/paper/cells").rglob("*.json"))
+    assert len(files) >= 100
+    for file in files:
+        text = file.read_text()
+        info = json.loads(text)["provenance"]
+        sha = info.get("commit") or info.get("landed_in")
+        assert sha and re.fullmatch(r"[0-9a-f]{40}", sha), file.name
+        assert not re.search(r'"/(home|root|work|tmp|Users)/', text), file.name
+        assert not any(c.startswith("/") for c in json.loads(text)["commands"].values()), file.name
+    old = {"provenance": {"commit": None, "landed_in": "b" * 40}}
+    cells = [{"provenance": {"commit": "a" * 40, "dirty": True}}, old, old]
+    assert commits_line(cells) == (
+        "Commits of the cells: `aaaaaaaaaa` with uncommitted changes (1 cell). Run before cells recorded "
+        "their commit (2 cells), each first landed in: `bbbbbbbbbb` (2 cells)."
+    )

@@ -30,7 +30,7 @@ from gym_actionflow.rollout import rollout
 from gym_actionflow.tasks.mug_hanging import HOLE_CENTER, PEG_DIRECTION, PEG_TIP
 
 from lerobot_actionflow import ActionFlowPolicy, schema
-from lerobot_actionflow.recipes import EVAL_SEED
+from lerobot_actionflow.recipes import EVAL_SEED, refuse_held_out
 
 APPROACH_START = PEG_TIP + APPROACH * PEG_DIRECTION
 """Where the expert starts the slide, in the hanger frame: the opening ``APPROACH`` beyond the peg's tip."""
@@ -106,10 +106,14 @@ def main(argv: list[str] | None = None) -> None:
                    help="print this seed's whole path, with the gripper command and whether the mug is held")
     p.add_argument("--every", type=int, default=6, help="with --path: print every N-th step")
     args = p.parse_args(argv)
+    seeds = args.seeds or list(range(EVAL_SEED, EVAL_SEED + args.episodes))
+    try:
+        refuse_held_out(seeds, "--seeds")
+    except ValueError as err:
+        p.error(str(err))
 
     policy = ActionFlowPolicy.from_pretrained(args.checkpoint).eval()
     env = gym.make("gym_actionflow/MugHanging-v0", variant=args.variant, mug_yaw=args.mug_yaw)
-    seeds = args.seeds or list(range(EVAL_SEED, EVAL_SEED + args.episodes))
     print(f"{args.checkpoint}, MugHanging {args.variant}: the handle's opening in the hanger frame (m); the "
           f"expert's insertion start is at x = {APPROACH_START[0]:.3f}\n")
     print("| seed | start | expert lined up | policy lined up | expert / policy |")

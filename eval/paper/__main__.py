@@ -6,7 +6,10 @@
     python -m eval.paper generalisation    [--profile ...] [--tasks MugHanging Lightbulb]
     python -m eval.paper report            [--profile ...]      # rebuild tables and plots from the JSON
     python -m eval.paper <experiment> --dry-run                 # list the datasets, trainings and cells
+    python -m eval.paper <experiment> --layouts dev --results-dir outputs/tuning   # tuning (dev layouts)
     python -m eval.paper <experiment> --results-dir eval/results/paper   # add to the committed results
+    python -m eval.paper <experiment> --executor ray [--lanes 2]         # every stage a Ray task, here
+    python -m eval.paper <experiment> --executor ray --address HEAD:6379 # ... on a running Ray cluster
 
 Experiments (the paper's claims; ``eval/paper/profiles.py`` has each profile's matrix):
 - ``sample-efficiency``: ActionFlow A.1 (IPA) / A.2 (multi-token) / A.3 (single token) and LeRobot's
@@ -29,8 +32,14 @@ Every cell prints and runs ``actionflow-record``, ``lerobot-train`` and ``lerobo
 read it and a training once for all its evaluations. A finished cell (its JSON under
 ``<results-dir>/cells/<profile>/<experiment>/``) is never run again: rerun the same command after an
 interruption and it continues. Each cell records the commit, package versions and machine that made it
-(``eval/provenance.py``) and no absolute path. Evaluation seeds (``lerobot-eval --seed=100000``) are checked
-against the seeds every recording tried, before and after recording. Tables and plots go to
+(``eval/provenance.py``) and no absolute path.
+
+Layouts: cells are evaluated on the held-out layouts (``lerobot-eval --seed=200000``) that no tuning
+touches; ``--layouts dev`` evaluates on the development layouts (from 100000), where settings are chosen, and
+is refused into the committed results. A held-out cell reuses its development twin's training (trainings do
+not depend on the layouts), so re-evaluating published checkpoints costs evaluations only. Reports list
+development cells apart. Evaluation seeds are checked against the seeds every recording tried, before and
+after recording. Tables and plots go to
 ``<results-dir>/<profile>_<experiment>.{md,png}``. The results folder defaults to ``outputs/paper/results``
 (git-ignored); the committed results are ``--results-dir eval/results/paper``.
 """
@@ -38,17 +47,19 @@ against the seeds every recording tried, before and after recording. Tables and 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
-from tqdm import tqdm
-
 from eval.paper.commands import check_plan
+from eval.paper.executor import EXECUTORS, plan_lanes, resolve_executor, run_local, run_ray
 from eval.paper.plan import EXPERIMENTS, Cell, Paths, build
 from eval.paper.profiles import MODELS, PROFILES
 from eval.provenance import portable_command
 
 PROGRAM = ("python", "-m", "eval.paper")
+COMMITTED = Path(__file__).resolve().parents[1] / "results" / "paper"
+"""The committed results (``--results-dir eval/results/paper``): held-out cells only from now on."""
 
 
 def describe(cells: list[Cell]) -> str:
@@ -65,25 +76,24 @@ def describe(cells: list[Cell]) -> str:
 
 
 def run_experiment(experiment: str, args: argparse.Namespace, harness_command: str) -> list[dict]:
-    from eval.paper.run import run_cell  # imports LeRobot: not needed for --dry-run or a plan error
-
     profile = PROFILES[args.profile]
-    cells = build(experiment, profile, args.tasks, args.models, args.steps, args.variants)
+    cells = build(experiment, profile, args.tasks, args.models, args.steps, args.variants, args.layouts)
     check_plan(cells)
+    resolve_executor(args.executor, args.address, args.lanes)
     print(describe(cells), flush=True)
+    if args.executor == "ray" and args.address is None:
+        print(plan_lanes(cells, args.lanes or os.cpu_count() or 1), flush=True)
     if args.dry_run:
         return []
     paths = Paths(args.work_dir, args.results_dir)
-    results, ran = [], 0
-    bar = tqdm(cells, desc=experiment, unit="cell", file=sys.stdout)
-    for cell in bar:
-        bar.set_postfix_str(cell.key[:60])
-        result, fresh = run_cell(cell, paths, profile.record_workers, harness_command)
-        ran += fresh
-        results.append(result)
-    bar.close()
+    workers = profile.record_workers
+    if args.executor == "ray":
+        done = run_ray(cells, paths, workers, harness_command, args.address, args.lanes)
+    else:
+        done = run_local(cells, paths, workers, harness_command)
+    ran = sum(fresh for _, fresh in done)
     print(f"{experiment}: {ran} cells run now, {len(cells) - ran} already finished")
-    return results
+    return [result for result, _ in done]
 
 
 def report(args: argparse.Namespace, experiments: tuple[str, ...]) -> None:
@@ -112,6 +122,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--variants", nargs="+", help="only the groups trained on these variants (e.g. D2)")
     parser.add_argument("--steps", type=int, help="training steps instead of the profile's")
     parser.add_argument("--dry-run", action="store_true", help="print the plan and run nothing")
+    parser.add_argument(
+        "--layouts", choices=("heldout", "dev"), default="heldout",
+        help="evaluation layouts: heldout (seeds from 200000, the published tables; default) or dev (from "
+        "100000, for tuning: refused into the committed results)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--executor", choices=EXECUTORS, default="local",
+        help="local: one cell after another here; ray: every stage a Ray task (eval/paper/executor.py)",
+    )  # fmt: skip
+    parser.add_argument("--address", help="with --executor ray: join this Ray cluster (HEAD:6379)")
+    parser.add_argument(
+        "--lanes", type=int,
+        help="with --executor ray: the CPUs a Ray started here may use (default: all cores); with --dry-run, "
+        "the lanes (GPUs) to spread the plan over",
+    )  # fmt: skip
     parser.add_argument("--work-dir", type=Path, default=Paths.work, help="datasets, checkpoints, logs")
     parser.add_argument("--results-dir", type=Path, default=Paths.results, help="cells' JSON, tables, plots")
     args = parser.parse_args(argv)
@@ -122,6 +147,12 @@ def main(argv: list[str] | None = None) -> None:
     if args.experiment == "report":
         report(args, EXPERIMENTS)
         return
+    if args.layouts == "dev" and args.results_dir.resolve() == COMMITTED.resolve():
+        parser.error(
+            f"--layouts dev into {COMMITTED}: the development layouts are where settings are tuned, so their "
+            "cells are not a published result; evaluate with --layouts heldout, or write tuning cells to "
+            "another --results-dir"
+        )
     try:
         run_experiment(args.experiment, args, harness_command)
     except ValueError as err:  # a bad plan (--tasks, --models) or a seed overlap: say it, run nothing more

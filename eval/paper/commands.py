@@ -15,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from eval.paper.plan import Cell, Dataset, Training
-from lerobot_actionflow.recipes import EVAL_SEED, task_recipe
+from lerobot_actionflow.recipes import LAYOUTS, task_recipe
 from lerobot_actionflow.recipes import commands as recipe_commands
 
 REPLAY_MODULE = "eval.paper.replay"
@@ -59,6 +59,7 @@ def env_flags(cell: Cell) -> list[str]:
 def eval_command(cell: Cell, checkpoint: Path, out: Path) -> list[str]:
     device = cell.training.device if cell.training else "cpu"
     recipe = task_recipe(cell.dataset.task)
+    recipe = replace(recipe, eval=replace(recipe.eval, layouts=cell.layouts))
     return recipe_commands.eval_command(
         recipe, cell.eval_variant, checkpoint, out, env_kwargs=dict(cell.dataset.env_kwargs),
         episodes=cell.episodes, batch_size=cell.batch_size, device=device, extra=cell.eval_flags,
@@ -76,10 +77,12 @@ MAX_TRIES_PER_EPISODE = 3
 """Planning bound on the seeds a recording tries per kept episode (the experts succeed on 99-100 %)."""
 
 
-def eval_seeds(episodes: int, batch_size: int) -> range:
-    """The layouts ``lerobot-eval --seed=EVAL_SEED`` resets: it steps whole batches of envs seeded
-    ``EVAL_SEED + i`` and keeps the first ``episodes``, so the last batch's extra envs count too."""
-    return range(EVAL_SEED, EVAL_SEED + math.ceil(episodes / batch_size) * batch_size)
+def eval_seeds(episodes: int, batch_size: int, layouts: str = "dev") -> range:
+    """The layouts ``lerobot-eval --seed=S`` resets (``S`` the first seed of ``layouts``, 100000 or 200000):
+    it steps whole batches of envs seeded ``S + i`` and keeps the first ``episodes``, so the last batch's
+    extra envs count too."""
+    first = LAYOUTS[layouts]
+    return range(first, first + math.ceil(episodes / batch_size) * batch_size)
 
 
 def planned_record_seeds(dataset: Dataset) -> range:
@@ -93,7 +96,7 @@ def check_disjoint(recorded: Iterable[int], evaluated: range, what: str) -> None
         raise ValueError(
             f"{what}: seeds {shared[:5]}{'...' if len(shared) > 5 else ''} are both recorded and evaluated; "
             f"evaluation uses seeds {evaluated.start}-{evaluated.stop - 1} "
-            f"(lerobot-eval --seed={EVAL_SEED}): "
+            f"(lerobot-eval --seed={evaluated.start}): "
             "record from a lower --seed or with fewer episodes"
         )
 
@@ -102,8 +105,8 @@ def check_plan(cells: Iterable[Cell]) -> None:
     """Before anything runs: no cell's evaluation may reach the seeds its dataset may record."""
     for cell in cells:
         if cell.training is not None:
-            check_disjoint(planned_record_seeds(cell.dataset), eval_seeds(cell.episodes, cell.batch_size),
-                           cell.key)  # fmt: skip
+            evaluated = eval_seeds(cell.episodes, cell.batch_size, cell.layouts)
+            check_disjoint(planned_record_seeds(cell.dataset), evaluated, cell.key)
 
 
 def recorded_seeds(data_root: Path) -> list[int]:

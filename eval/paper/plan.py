@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from eval.paper.profiles import MODELS, Group, Profile
-from lerobot_actionflow.recipes import task_recipe
+from lerobot_actionflow.recipes import LAYOUTS, task_recipe
 
 EXPERIMENTS = ("sample-efficiency", "inference-steps", "generalisation")
 
@@ -87,6 +87,10 @@ class Cell:
     schedule: str | None = None
     replay_offset_mm: float | None = None
     note: str = ""
+    layouts: str = "heldout"
+    """Which evaluation layouts (``lerobot_actionflow.recipes.LAYOUTS``): ``heldout`` (from 200000) for the
+    published tables, ``dev`` (from 100000) for tuning. A replay is on its recorded layouts whatever this
+    says."""
 
     @property
     def model(self) -> str:
@@ -98,7 +102,11 @@ class Cell:
     def key(self) -> str:
         setting = f"_k{self.k}_{self.schedule}" if self.k is not None else ""
         name = self.model.replace(" ", "_")
-        return f"{self.dataset.key}__{name}__{self.eval_variant}{setting}_{_digest(asdict(self))}"
+        fields = asdict(self)
+        # Development cells and replays keep the keys they had before held-out layouts existed.
+        if fields.pop("layouts") == "dev" or self.training is None:
+            return f"{self.dataset.key}__{name}__{self.eval_variant}{setting}_{_digest(fields)}"
+        return f"{self.dataset.key}__{name}__{self.eval_variant}{setting}_heldout_{_digest(asdict(self))}"
 
 
 @dataclass(frozen=True)
@@ -197,9 +205,12 @@ def build(
     models: list[str] | None = None,
     steps: int | None = None,
     variants: list[str] | None = None,
+    layouts: str = "heldout",
 ) -> list[Cell]:
     """Every cell of ``experiment`` under ``profile``, restricted to ``tasks``, ``models`` and training
-    ``variants`` (``D0``, ``D2``...) if given."""
+    ``variants`` (``D0``, ``D2``...) if given, evaluated on ``layouts`` (``heldout`` or ``dev``)."""
+    if layouts not in LAYOUTS:
+        raise ValueError(f"layouts {layouts!r}; expected one of {tuple(LAYOUTS)}")
     if experiment not in EXPERIMENTS:
         raise ValueError(f"experiment {experiment!r}; expected one of {EXPERIMENTS}")
     unknown = sorted(set(models or ()) - set(MODELS) - {"replay"})
@@ -211,7 +222,7 @@ def build(
     groups = _only(groups, "variant", variants, where + (f" for {', '.join(tasks)}" if tasks else ""))
     wanted = set(models) if models else None
     common = dict(experiment=experiment, profile=profile.name, episodes=profile.eval_episodes,
-                  batch_size=profile.eval_batch_size)  # fmt: skip
+                  batch_size=profile.eval_batch_size, layouts=layouts)  # fmt: skip
     cells: list[Cell] = []
     for group in groups:
         title = group.title or f"{group.task} {group.variant}"

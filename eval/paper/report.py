@@ -7,6 +7,11 @@ success vs demonstrations per task, success vs inference steps, or success on th
 layout. Numbers are final-checkpoint success; several training seeds give their mean and spread; a profile
 that evaluates checkpoints during training adds a second table, the best of those evaluations, labelled.
 The head of each file names the commits its cells were run at (their recorded provenance).
+
+Cells evaluated on the development layouts (seeds from 100000, where settings were tuned) are never pooled
+with held-out ones (from 200000): when an experiment has held-out cells, they make the tables and the plot
+and the development cells are listed apart; when it has none yet, the file says in its head that every number
+in it is on development layouts and not a held-out result.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from eval.paper.profiles import DIFFUSION_NORMALISATION
+from lerobot_actionflow.recipes import LAYOUTS
 
 TITLES = {
     "sample-efficiency": "Sample efficiency: success vs demonstrations",
@@ -108,20 +114,55 @@ def superseded_section(results: Path, profile: str, experiment: str) -> list[str
     return [*lines, ""]
 
 
-BEFORE_PROVENANCE = "before provenance"
-"""How the report names cells run before cells recorded their commit."""
+BEFORE_PROVENANCE = "before cells recorded their commit"
+"""How the report names cells run before cells recorded their provenance."""
+
+
+def _counted(counts: dict[str, int]) -> str:
+    return ", ".join(f"{name} ({n} cell{'' if n == 1 else 's'})" for name, n in sorted(counts.items()))
 
 
 def commits_line(cells: list[dict]) -> str:
-    """Which commits the cells were run at, with their counts: ``abc1234567 (12 cells), before provenance
-    (200 cells)``; a commit run with uncommitted changes says so."""
-    counts: dict[str, int] = defaultdict(int)
+    """Which commits the cells were run at, with their counts (``abc1234567 (12 cells)``; a commit run with
+    uncommitted changes says so). Cells run before cells recorded their commit are counted apart, each by the
+    first commit that held its result (``provenance.landed_in``): the code that ran it is that or older."""
+    ran: dict[str, int] = defaultdict(int)
+    landed: dict[str, int] = defaultdict(int)
     for c in cells:
         info = c.get("provenance") or {}
-        name = f"`{info['commit'][:10]}`" if info.get("commit") else BEFORE_PROVENANCE
-        counts[name + (" with uncommitted changes" if info.get("dirty") else "")] += 1
-    parts = [f"{name} ({n} cell{'' if n == 1 else 's'})" for name, n in sorted(counts.items())]
-    return "Commits of the cells: " + ", ".join(parts) + "."
+        if info.get("commit"):
+            ran[f"`{info['commit'][:10]}`" + (" with uncommitted changes" if info.get("dirty") else "")] += 1
+        else:
+            landed[f"`{info['landed_in'][:10]}`" if info.get("landed_in") else "unknown"] += 1
+    parts = []
+    if ran:
+        parts.append("Commits of the cells: " + _counted(ran) + ".")
+    if landed:
+        n = sum(landed.values())
+        parts.append(f"Run {BEFORE_PROVENANCE} ({n} cells), each first landed in: " + _counted(landed) + ".")
+    return " ".join(parts)
+
+
+def layouts_of(cell: dict) -> str | None:
+    """``heldout`` or ``dev``, from a cell's first evaluation seed; None for a replay (recorded layouts)."""
+    seeds = cell.get("eval_seeds")
+    if not seeds:
+        return None
+    return "heldout" if seeds[0] >= LAYOUTS["heldout"] else "dev"
+
+
+def development_section(cells: list[dict], experiment: str) -> list[str]:
+    """Development-layout cells listed apart from the held-out tables: the numbers settings were tuned on."""
+    if not cells:
+        return []
+    lines = [
+        f"## Development layouts (seeds from {LAYOUTS['dev']}): tuning, not a result", "",
+        "The same kind of cells on the layouts the settings were chosen on; kept as the record of that "
+        "tuning, never pooled with the held-out tables above.", "",
+    ]  # fmt: skip
+    for group, rows in aggregate(cells).items():
+        lines += [f"### {group}", "", markdown_table(rows), ""]
+    return lines
 
 
 def _minutes(values: list[float]) -> str:
@@ -286,25 +327,36 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
 
 def write(results: Path, profile: str, experiment: str, report_command: str) -> tuple[Path, Path] | None:
     """Rebuild the table and plot of one experiment from its cells; None when no cell has finished."""
-    cells = load_cells(results / "cells" / profile / experiment)
-    if not cells:
+    every = load_cells(results / "cells" / profile / experiment)
+    if not every:
         return None
+    heldout = any(layouts_of(c) == "heldout" for c in every)
+    cells = [c for c in every if layouts_of(c) != "dev"] if heldout else every
+    apart = [c for c in every if layouts_of(c) == "dev"] if heldout else []
     table = aggregate(cells)
     stem = results / f"{profile}_{experiment}"
-    made_by = sorted({c["harness_command"] for c in cells if c.get("harness_command")})
-    plot(experiment, table, stem.with_suffix(".png"), f"{profile} profile; made by: {report_command}")
+    made_by = sorted({c["harness_command"] for c in every if c.get("harness_command")})
+    where = "held-out layouts" if heldout else "development layouts (tuning), not held-out"
+    caption = f"{profile} profile, {where}; made by: {report_command}"
+    plot(experiment, table, stem.with_suffix(".png"), caption)
     first = next((c for c in cells if c.get("steps")), cells[0])  # a trained cell, not a replay
     lines = [
         f"# {TITLES[experiment]} ({profile} profile)", "",
         f"This file and [{stem.name}.png]({stem.name}.png) were made by `{report_command}` from the "
         f"{len(cells)} cells in [cells/{profile}/{experiment}/](cells/{profile}/{experiment}/) (each "
         "cell's JSON holds its `actionflow-record`, `lerobot-train` and `lerobot-eval` commands and "
-        "timings). The cells were run by:", "", *[f"    {c}" for c in made_by], "", commits_line(cells), "",
+        "timings). The cells were run by:", "", *[f"    {c}" for c in made_by], "", commits_line(every), "",
         f"Final-checkpoint success over {first['n_episodes']} evaluation episodes per cell, evaluation seeds "
         "from "
         f"{first['eval_seeds'][0] if first.get('eval_seeds') else 'n/a'} (no recorded seed is evaluated); "
         f"training: {first['steps']} steps at batch {first['batch_size']} on `{first['device']}`.", "",
     ]  # fmt: skip
+    if not heldout:
+        lines += [
+            f"**Development layouts only.** Every number below is on seeds from {LAYOUTS['dev']}, the "
+            "layouts the settings were tuned on: not a held-out result. `--layouts heldout` (the harness's "
+            f"default) evaluates the same trainings on seeds from {LAYOUTS['heldout']}.", "",
+        ]  # fmt: skip
     tasks = {c["group"]: c["task"] for c in cells}
     for group, rows in table.items():
         lines += [f"## {group}", "", markdown_table(rows), ""]
@@ -324,7 +376,8 @@ def write(results: Path, profile: str, experiment: str, report_command: str) -> 
         for group, rows in best.items():
             lines += [f"### {group}", "", markdown_table(rows), ""]
     lines += [f"![{TITLES[experiment]}]({stem.name}.png)", ""]
-    lines += timing_section(cells)
+    lines += development_section(apart, experiment)
+    lines += timing_section(every)
     lines += superseded_section(results, profile, experiment)
     stem.with_suffix(".md").write_text("\n".join(lines))
     return stem.with_suffix(".md"), stem.with_suffix(".png")

@@ -148,7 +148,7 @@ def run_cell(cell: Cell, paths: Paths, workers: int = 1, harness_command: str = 
     if path.is_file():
         return json.loads(path.read_text()), False
     data = record(cell.dataset, paths, workers)
-    seeds = eval_seeds(cell.episodes, cell.batch_size)
+    seeds = eval_seeds(cell.episodes, cell.batch_size, cell.layouts)
     if cell.training is not None:  # a replay is on the recorded layouts by definition
         check_disjoint(recorded_seeds(paths.data(cell.dataset)), seeds, cell.key)
     body = _evaluate(cell, paths) if cell.training is not None else _replay(cell, paths)
@@ -162,7 +162,7 @@ def run_cell(cell: Cell, paths: Paths, workers: int = 1, harness_command: str = 
         "schedule": cell.schedule, "replay_offset_mm": cell.replay_offset_mm,
         "steps": training and training.steps, "batch_size": training and training.batch_size,
         "seed": training and training.seed, "device": training.device if training else "cpu",
-        "record_seeds": data["seeds_tried"],
+        "record_seeds": data["seeds_tried"], "layouts": None if training is None else cell.layouts,
         "eval_seeds": None if training is None else [seeds.start, seeds.start + cell.episodes - 1],
         **body, "harness_command": harness_command, "key": cell.key, "provenance": provenance(),
     }  # fmt: skip

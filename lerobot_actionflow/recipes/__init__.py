@@ -27,6 +27,18 @@ touches."""
 EVAL_SEED = LAYOUTS["dev"]
 """``lerobot-eval --seed`` of development evaluations: every evaluated layout is one no recording used."""
 
+
+def refuse_held_out(seeds, tool: str) -> None:
+    """Raise if a tuning or diagnostic ``tool`` would look at held-out layouts (seeds from 200000): what a
+    diagnosis sees shapes the next setting, so the held-out layouts stay for the published tables only."""
+    held = sorted(s for s in seeds if s >= LAYOUTS["heldout"])
+    if held:
+        raise ValueError(
+            f"{tool}: seeds {held[:3]}{'...' if len(held) > 3 else ''} are held-out layouts (from "
+            f"{LAYOUTS['heldout']}), kept for published tables; diagnose and tune on the development "
+            f"layouts, seeds {LAYOUTS['dev']}-{LAYOUTS['heldout'] - 1}"
+        )
+
 LOADERS: dict[str, tuple[str, ...]] = {
     # LeRobot's streaming dataset with one worker: files read in order through a 1000-frame shuffle buffer,
     # about 2.5 ms a sample against 10-18 ms for the map-style dataset; 4.2x the samples/s of the map-style
