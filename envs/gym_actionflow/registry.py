@@ -8,7 +8,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 
@@ -68,6 +68,14 @@ def check_observation(
     return chosen
 
 
+class Subtask(NamedTuple):
+    """One object-centric subtask of a task: the token of the object its motion is relative to, and the token
+    of the object the hand carries through it (None: nothing held, or nothing whose pose matters)."""
+
+    object: str
+    carried: str | None = None
+
+
 @dataclass(frozen=True)
 class TaskSpec:
     name: str
@@ -81,6 +89,12 @@ class TaskSpec:
     simulator: str = "mujoco"
     """``mujoco``: our own MjSpec scene (:class:`gym_actionflow.base.ManipulationEnv`); ``robosuite``:
     robosuite's environment behind the same token contract (:mod:`gym_actionflow.tasks.robomimic`)."""
+    subtasks: tuple[Subtask, ...] = ()
+    """The task's object-centric subtasks, in order: an episode is cut into them where the gripper command
+    changes sign (closes on an object, opens to release it), so a task with k gripper changes has k + 1
+    subtasks, the last running to the episode's end. Stack: reach and grasp cube A (``Subtask("cube_a")``);
+    carry it onto cube B and open (``Subtask("cube_b", carried="cube_a")``); leave (``Subtask("cube_b")``).
+    What ``actionflow-generate`` moves into a new layout (empty: the task cannot be generated)."""
 
     @property
     def env_id(self) -> str:
@@ -132,6 +146,7 @@ def load(entry_point: str) -> type:
     return getattr(importlib.import_module(module), attr)
 
 
+_S = Subtask
 TASKS: tuple[TaskSpec, ...] = (
     TaskSpec(
         "Stack",
@@ -139,6 +154,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.stack_three:StackExpert",
         200,
         ("D0", "D1"),
+        subtasks=(_S("cube_a"), _S("cube_b", "cube_a"), _S("cube_b")),
     ),
     TaskSpec(
         "StackThree",
@@ -146,6 +162,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.stack_three:StackThreeExpert",
         400,
         ("D0", "D1"),
+        subtasks=(_S("cube_a"), _S("cube_b", "cube_a"), _S("cube_c"), _S("cube_a", "cube_c"), _S("cube_a")),
     ),
     TaskSpec(
         "ThreePieceAssembly",
@@ -153,6 +170,9 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.three_piece_assembly:ThreePieceAssemblyExpert",
         500,
         ("D0", "D1", "D2"),
+        subtasks=(
+            _S("piece_1"), _S("base", "piece_1"), _S("piece_2"), _S("piece_1", "piece_2"), _S("piece_1")
+        ),
     ),
     TaskSpec(
         "Coffee",
@@ -160,6 +180,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.coffee:CoffeeExpert",
         500,
         ("D0", "D1", "D2"),
+        subtasks=(_S("pod"), _S("machine", "pod"), _S("lid"), _S("machine")),
     ),
     TaskSpec(
         "Threading",
@@ -167,6 +188,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.threading:ThreadingExpert",
         400,
         ("D0", "D1", "D2"),
+        subtasks=(_S("needle"), _S("tripod", "needle")),
     ),
     TaskSpec(
         "Lightbulb",
@@ -174,6 +196,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.lightbulb:LightbulbExpert",
         300,
         ("D0",),
+        subtasks=(_S("socket", "bulb"),),
     ),
     TaskSpec(
         "MugHanging",
@@ -181,6 +204,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.mug_hanging:MugHangingExpert",
         400,
         ("train", "test", "scene_moved"),
+        subtasks=(_S("mug"), _S("hanger", "mug"), _S("hanger")),
     ),
     # Robomimic's tasks, simulated by robosuite itself (installed by `make robosuite`; imported when made).
     TaskSpec(

@@ -454,6 +454,11 @@ class TokenEnv(gym.Env):
         ``entity_names`` in order. A recorder writes them into the dataset, so its rows say what they are."""
         return (TOKEN_EEF, *self.entity_names)
 
+    def object_poses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """World pose (position (3,), rotation (3, 3)) of each entity by its token name, as ``token_poses``
+        holds them after the EEF, whatever the observation layout."""
+        return dict(zip(self.entity_names, self._entity_poses(), strict=True))
+
     def geoms_of(self, body_name: str) -> set[int]:
         """Ids of every geom in a body and its descendants."""
         return subtree_geoms(self.model, body_name)

@@ -60,6 +60,25 @@ ActionFlow places each image where its camera was; the cameras' poses as its `ca
 ```"""
 
 
+GENERATED_HEAD = """\
+Demonstrations of **`{env_id}`** (variant `{variant}`) generated with `actionflow-generate` from the
+demonstrations of the source dataset `{source}`, by MimicGen's protocol: each source episode is cut into the
+task's object-centric subtasks, and every generated episode replays, for each subtask, one source episode's
+segment moved with the object it acts on, linked to the previous one; only successes are kept. The source
+episode of each segment of each episode is listed in `meta/actionflow_generation.json`.
+
+"""
+
+
+GENERATED_ROWS = (
+    ("successful expert episodes only", "successful generated episodes only"),
+    ("| expert noise |", "| target jitter |"),
+    ("(waypoint offsets and action jitter scale; 0 = deterministic)",
+     "(per-step jitter of the targets; 0 = none)"),
+    ("| expert success rate |", "| generation success rate |"),
+)
+
+
 def _numbers(values: list[float]) -> str:
     """Numbers as info.json has them (rounded to 1e-6), without trailing zeros: ``0.55, 0, -0.0984``."""
     return ", ".join(np.format_float_positional(v, trim="-") for v in values)
@@ -125,6 +144,10 @@ def dataset_card_text(
     task = find_task(recipe.task)
     tried = sorted(log.kept_seeds + log.failed_seeds)
     template = resources.files(__package__).joinpath("dataset_card.md").read_text()
+    if recipe.source is not None:
+        template = GENERATED_HEAD + template.split("\n\n", 1)[1]
+        for expert, generated in GENERATED_ROWS:
+            template = template.replace(expert, generated)
     return template.format(
         env_id=task.env_id,
         variant=recipe.variant,
@@ -138,6 +161,7 @@ def dataset_card_text(
         fps=FPS if fps is None else fps,
         features=_features_text(features, recipe.obs_layout),
         command=recipe.command(),
+        source=recipe.source,
     )
 
 

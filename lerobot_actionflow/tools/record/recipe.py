@@ -54,6 +54,9 @@ class Recipe:
     decoded at every sample)."""
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     """Further ``gym.make`` keyword arguments (e.g. ``hanger_obs = "point_cloud"``)."""
+    source: str | None = None
+    """A source dataset's folder: the episodes are generated from its demonstrations
+    (``actionflow-generate``, :mod:`lerobot_actionflow.tools.generate`) instead of the scripted expert's."""
 
     REQUIRED = ("task", "variant", "episodes", "repo_id")
 
@@ -69,7 +72,18 @@ class Recipe:
         return {k: v for k, v in observation.items() if v != defaults[k]} | dict(self.env_kwargs)
 
     def command(self) -> str:
-        """The ``actionflow-record`` command line that reproduces this dataset."""
+        """The ``actionflow-record`` (or, for generated episodes, ``actionflow-generate``) command line that
+        reproduces this dataset."""
+        if self.source is not None:
+            args = ["actionflow-generate", self.source, "--task", self.task, "--variant", self.variant]
+            args += ["--episodes", str(self.episodes), "--seed", str(self.seed), "--noise", f"{self.noise:g}"]
+            if self.obs_mode != "state":
+                args += ["--obs-mode", self.obs_mode]
+            if self.cameras is not None:
+                args += ["--cameras", *self.cameras]
+            for key, value in self.env_kwargs.items():
+                args += ["--env-kwarg", f"{key}={value}"]
+            return shlex.join([*args, "--repo-id", self.repo_id])
         args = ["actionflow-record", "--task", self.task, "--variant", self.variant]
         args += ["--episodes", str(self.episodes), "--seed", str(self.seed), "--noise", f"{self.noise:g}"]
         if self.obs_mode != "state":
@@ -189,6 +203,8 @@ def check_fields(values: Mapping[str, Any], label: Label = str) -> None:
             fail("repo_id", "a Hub repo id such as 'you/stack_d0_200' (letters, digits, '-', '_', '.')")
     if "env_kwargs" in values and task is not None:
         _check_env_kwargs(task, values["env_kwargs"], label)
+    if values.get("source") is not None and not isinstance(values["source"], str):
+        fail("source", "the path of a source dataset's folder, or none")
 
 
 TRAINING_TABLES = ("train", "eval")

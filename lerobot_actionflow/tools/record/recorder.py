@@ -97,6 +97,10 @@ def _features(env, image_storage: str) -> dict[str, dict]:
     return features
 
 
+GENERATION_FAILURES = 20
+"""Generated episodes may fail this many times as often as an expert's before a run gives up (success rates
+down to about 5 %)."""
+
 IMAGE_DATA_FILE_MB = 1
 """Data file size (MB) of datasets with PNG frames: LeRobot's streaming loader interleaves up to 16 files
 (shards) at random, so a dataset in many small files is read in a far better mixed order than one in a few
@@ -265,7 +269,11 @@ def record(
         env = None
     ds, log, replay = _open_dataset(recipe, root, features)
     dataset = _Checkpointed(ds, root, recipe.repo_id, checkpoint_every)
-    max_failures = max(20, recipe.episodes)  # an expert at < 50 % means something is wrong: stop early
+    # An expert at < 50 % means something is wrong: stop early. Generated episodes fail more often by nature
+    # (MimicGen's rates run from under 10 % to 100 %): they may fail up to GENERATION_FAILURES times as often.
+    generated = recipe.source is not None
+    max_failures = max(20, recipe.episodes) * (GENERATION_FAILURES if generated else 1)
+    who = "generation" if generated else f"the {task.name} expert"
     run_start = start = time.time()
     kept_now = failed_now = 0
     half_written = False  # an exception in a LeRobot write: leave the rest to the next run's roll-back
@@ -290,7 +298,7 @@ def record(
             while len(log.kept_seeds) < recipe.episodes:
                 if len(log.failed_seeds) > max_failures:
                     raise RuntimeError(
-                        f"the {task.name} expert failed {len(log.failed_seeds)} times "
+                        f"{who} failed {len(log.failed_seeds)} times "
                         f"(success rate {log.success_rate:.0%}); stopping. Kept episodes are saved in {root}"
                     )
                 episode = next(source)
@@ -318,6 +326,11 @@ def record(
         if not half_written:
             with deferred_interrupts():
                 dataset.checkpoint(reopen=False)
+                if generated:  # which source episode each segment replayed: a function of the seeds
+                    from lerobot_actionflow.tools.generate import cached_source, write_generation_file
+
+                    done = log.kept_seeds[: _total_episodes(root)]
+                    write_generation_file(root, cached_source(recipe.source, recipe.task), done)
                 write_card(root)  # the folder describes itself, pushed or not
         if env is not None:
             env.close()

@@ -65,7 +65,8 @@ def make_env(recipe: Recipe):
 
 
 def simulate(env, recipe: Recipe, seed: int) -> Episode:
-    """Run the recipe's expert on ``env`` from ``seed``; the episode is a function of the seed alone."""
+    """Run the recipe's expert (or, with a ``source``, a generated episode) on ``env`` from ``seed``; the
+    episode is a function of the seed alone."""
     from gym_actionflow import make_expert, run_episode
 
     task = env.unwrapped.task_description
@@ -74,8 +75,15 @@ def simulate(env, recipe: Recipe, seed: int) -> Episode:
     def keep(obs: dict, action: np.ndarray) -> None:
         frames.append(schema.dataset_frame(obs, action, task))
 
-    result = run_episode(env, make_expert(env, noise=recipe.noise, seed=seed), seed, on_step=keep)
-    if not result.success:
+    if recipe.source is not None:  # generated from a source dataset's segments (actionflow-generate)
+        from lerobot_actionflow.tools.generate import cached_source, run_generated
+
+        source = cached_source(recipe.source, recipe.task)
+        success = run_generated(env, source, seed, recipe.noise, on_step=keep)
+    else:
+        expert = make_expert(env, noise=recipe.noise, seed=seed)
+        success = run_episode(env, expert, seed, on_step=keep).success
+    if not success:
         return Episode(seed, False, {}, task)
     columns = {key: np.stack([frame[key] for frame in frames]) for key in frames[0] if key != "task"}
     return Episode(seed, True, columns, task)

@@ -1,0 +1,238 @@
+"""actionflow-generate (MimicGen's protocol): the cut into subtasks, the linking motion and the object-centric
+transform against independent references, exact replay of a source on its own layout, and the real command
+from a tiny expert recording (D0 sources, D1 layouts), with its card, provenance file and bad-input errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gym_actionflow import find_task
+from gym_actionflow.registry import TASKS
+from scipy.spatial.transform import Rotation, Slerp
+
+from lerobot_actionflow.tools import generate
+from lerobot_actionflow.tools.generate import (
+    SETTLE_RADIUS,
+    Segment,
+    SegmentPlayer,
+    Source,
+    link,
+    load_source,
+    split,
+    to_matrix,
+    to_pose9,
+)
+from lerobot_actionflow.tools.record.recipe import Recipe
+from lerobot_actionflow.tools.record.recorder import record
+
+
+def _pose(rng: np.random.Generator, scale: float = 0.3) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    m[:3, 3] = rng.uniform(-scale, scale, 3)
+    return m
+
+
+def _actions(positions: np.ndarray, grips: np.ndarray) -> np.ndarray:
+    pairs = zip(positions, grips, strict=True)
+    rows = [np.concatenate([to_pose9(_hom(np.eye(3), p)), [g]]) for p, g in pairs]
+    return np.array(rows)
+
+
+def _hom(rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = rot, pos
+    return m
+
+
+def test_an_episode_is_cut_after_each_gripper_change_once_the_hand_has_moved_on():
+    """Close at frame 3, hold while the fingers close, lift: the cut comes at the first target
+    SETTLE_RADIUS from the close, so the grasp and its lift stay in the first subtask."""
+    z = [0.3, 0.2, 0.1, 0.05, 0.05, 0.051, 0.06, 0.05 + SETTLE_RADIUS + 0.001, 0.2, 0.3]
+    positions = np.array([[0.0, 0.0, v] for v in z])
+    grips = np.array([-1, -1, -1, 1, 1, 1, 1, 1, 1, 1.0])
+    assert split(_actions(positions, grips), 2) == [(0, 7), (7, 10)]
+    assert split(_actions(positions, grips), 3) is None  # one change: not a three-subtask episode
+    assert split(_actions(positions, -np.ones(10)), 1) == [(0, 10)]
+
+
+def test_the_link_is_a_straight_evenly_timed_line_and_the_rotation_geodesic():
+    """Against scipy's Slerp: every intermediate rotation on the geodesic at its time, the position on the
+    line; the number of steps is set by the slower of the two at the experts' speeds."""
+    rng = np.random.default_rng(0)
+    start, end = _pose(rng), _pose(rng)
+    path = link(start, end)
+    np.testing.assert_allclose(path[-1], end, atol=1e-9)
+    angle = Rotation.from_matrix(start[:3, :3].T @ end[:3, :3]).magnitude()
+    distance = np.linalg.norm(end[:3, 3] - start[:3, 3])
+    assert len(path) == int(np.ceil(max(distance / generate.LINK_SPEED, angle / generate.LINK_ROT_SPEED)))
+    slerp = Slerp([0, 1], Rotation.from_matrix([start[:3, :3], end[:3, :3]]))
+    for k, m in enumerate(path, start=1):
+        s = k / len(path)
+        np.testing.assert_allclose(m[:3, :3], slerp(s).as_matrix(), atol=1e-8)
+        np.testing.assert_allclose(m[:3, 3], (1 - s) * start[:3, 3] + s * end[:3, 3], atol=1e-12)
+
+
+class _FakeEnv:
+    """What the player reads of an env: the TCP pose and the objects' poses."""
+
+    def __init__(self, tcp: np.ndarray, objects: dict[str, np.ndarray]):
+        self.unwrapped = self
+        self._tcp, self._objects = tcp, objects
+
+    def tcp_pose(self):
+        return self._tcp[:3, 3], self._tcp[:3, :3]
+
+    def object_poses(self):
+        return {k: (m[:3, 3], m[:3, :3]) for k, m in self._objects.items()}
+
+
+def _played(player: SegmentPlayer, env=None) -> list[np.ndarray]:
+    """Every action of the player, each stepped in ``env`` if given."""
+    out = []
+    while (action := player.act()) is not None:
+        out.append(action)
+        if env is not None:
+            env.step(action)
+    return out
+
+
+def test_a_segment_moves_rigidly_with_its_object_and_a_carried_object_retraces_its_path():
+    """A random SE(3) motion of the reference object moves every target of the segment by exactly that
+    motion (after the linking steps); with a carried object sitting differently in the hand, the carried
+    object's implied world poses, not the hand's, are the source's moved by the same motion."""
+    rng = np.random.default_rng(1)
+    src_obj, src_in_hand, now_in_hand = _pose(rng), _pose(rng, 0.05), _pose(rng, 0.05)
+    targets = [_pose(rng) for _ in range(6)]
+    actions = np.array([np.concatenate([to_pose9(t), [1.0]]) for t in targets])
+    motion = _pose(rng)
+    new_obj = motion @ src_obj
+    tcp = targets[0]  # the hand already at the segment's start: no link beyond one step
+    plain = Segment(0, "box", src_obj, actions)
+    played = _played(SegmentPlayer(_FakeEnv(tcp, {"box": new_obj}), Source("s", "T", [[plain]]), seed=0))
+    moved = played[-(len(targets) + generate.HOLD_STEPS) : -generate.HOLD_STEPS]
+    for action, target in zip(moved, targets, strict=True):
+        np.testing.assert_allclose(to_matrix(action[:9]), motion @ target, atol=1e-6)
+
+    carried = Segment(0, "box", src_obj, actions, carried="cup", in_hand=src_in_hand)
+    env = _FakeEnv(tcp, {"box": new_obj, "cup": tcp @ now_in_hand})
+    played = _played(SegmentPlayer(env, Source("s", "T", [[carried]]), seed=0))
+    moved = played[-(len(targets) + generate.HOLD_STEPS) : -generate.HOLD_STEPS]
+    for action, target in zip(moved, targets, strict=True):
+        cup_world = to_matrix(action[:9]) @ now_in_hand
+        np.testing.assert_allclose(cup_world, motion @ target @ src_in_hand, atol=1e-6)
+
+
+def test_every_generatable_task_names_tokens_its_env_has():
+    """A subtask's reference and carried objects are tokens of the task's env (else no source could hold
+    them); the robosuite tasks declare none and are refused by name."""
+    for spec in TASKS:
+        if not spec.subtasks:
+            assert spec.simulator == "robosuite"
+            continue
+        env = gym.make(spec.env_id, **spec.kwargs())
+        names = env.unwrapped.token_names
+        env.close()
+        for sub in spec.subtasks:
+            assert sub.object in names and (sub.carried is None or sub.carried in names), (spec.name, sub)
+
+
+@pytest.fixture(scope="module")
+def stack_source(tmp_path_factory) -> Path:
+    """Three Stack D0 expert demonstrations (the standard noise), recorded by actionflow-record."""
+    root = tmp_path_factory.mktemp("gen") / "src"
+    record(Recipe("Stack", "D0", 3, "local/stack_src3", seed=0, noise=1.0), root, progress=False)
+    return root
+
+
+def test_a_source_replayed_on_its_own_layout_is_the_source(stack_source):
+    """Every segment drawn from the episode recorded on the same seed: the generated actions are the
+    recorded ones (the transforms are the identity, the links one step to where the hand already is)."""
+    source = load_source(stack_source, "Stack")
+    assert [len(c) for c in source.segments] == [3, 3, 3] and source.skipped == {}
+    env = gym.make(find_task("Stack").env_id, variant="D0")
+    env.reset(seed=0)
+    player = SegmentPlayer(env, source, seed=0)
+    player.choice = [0, 0, 0]  # the episode recorded from seed 0
+    played = np.array(_played(player, env))[: -generate.HOLD_STEPS]
+    recorded = np.concatenate([c[0].actions for c in source.segments])
+    env.close()
+    assert played.shape == recorded.shape
+    np.testing.assert_allclose(played, recorded, atol=1e-6)
+
+
+def test_generate_writes_a_dataset_for_layouts_the_sources_never_showed(stack_source, tmp_path, capsys):
+    """The real command, D0 sources -> D1 layouts: a LeRobotDataset of successes with the source's schema,
+    its card naming the source and the generation rate, the source episode of every segment, and a rerun
+    that adds nothing."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    out = tmp_path / "gen"
+    argv = [str(stack_source), "--task", "Stack", "--variant", "D1", "--episodes", "2", "--seed", "1000",
+            "--root", str(out), "--quiet"]  # fmt: skip
+    assert generate.main(argv) == 0
+    ds = LeRobotDataset("local/stack_d1_gen2", root=out)
+    assert ds.meta.total_episodes == 2
+    source_ds = LeRobotDataset("local/stack_src3", root=stack_source)
+    assert set(ds.meta.features) == set(source_ds.meta.features)
+    card = (out / "README.md").read_text()
+    assert "generated with `actionflow-generate`" in card and str(stack_source) in card
+    assert "generation success rate" in card and "actionflow-generate " in card
+    info = json.loads((out / "meta" / generate.GENERATION_FILE).read_text())
+    log = json.loads((out / "meta" / "actionflow_recording.json").read_text())
+    assert [e["seed"] for e in info["episodes"]] == log["kept_seeds"]
+    assert all(len(e["segments"]) == 3 and set(e["segments"]) <= {0, 1, 2} for e in info["episodes"])
+    assert log["recipe"]["source"] == str(stack_source) and log["recipe"]["variant"] == "D1"
+    capsys.readouterr()
+    assert generate.main(argv) == 0  # finished: nothing generated again
+    assert "2 episodes generated" in capsys.readouterr().out
+    assert LeRobotDataset("local/stack_d1_gen2", root=out).meta.total_episodes == 2
+
+
+def test_bad_sources_are_refused_by_name(stack_source, tmp_path):
+    """Another task's recording, an empty dataset, a folder that is no dataset, a recording without a way
+    to tell successes, and one whose every episode failed: each a ValueError saying what was found."""
+    with pytest.raises(ValueError, match="is a recording of Stack, not Threading"):
+        load_source(stack_source, "Threading")
+    with pytest.raises(ValueError, match="no meta/info.json"):
+        load_source(tmp_path, "Stack")
+    with pytest.raises(ValueError, match="RobosuiteLift declares no subtasks"):
+        load_source(stack_source, "RobosuiteLift")
+    empty = tmp_path / "empty"
+    shutil.copytree(stack_source, empty)
+    info = json.loads((empty / "meta" / "info.json").read_text())
+    (empty / "meta" / "info.json").write_text(json.dumps(info | {"total_episodes": 0}))
+    with pytest.raises(ValueError, match="holds no episode"):
+        load_source(empty, "Stack")
+    unknown = tmp_path / "unknown"
+    shutil.copytree(stack_source, unknown)
+    (unknown / "meta" / "actionflow_recording.json").unlink()
+    with pytest.raises(ValueError, match="neither which episodes succeeded"):
+        load_source(unknown, "Stack")
+    failed = _with_success_column(stack_source, tmp_path / "failed", value=False)
+    with pytest.raises(ValueError, match="no usable successful episode.*did not end in success"):
+        load_source(failed, "Stack")
+    kept = _with_success_column(stack_source, tmp_path / "kept", value=True)
+    assert len(load_source(kept, "Stack").episodes) == 3  # a recording that says its episodes succeeded
+
+
+def _with_success_column(source: Path, root: Path, value: bool) -> Path:
+    """A copy of ``source`` as another tool would leave it: no recording log, a next.success column."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    shutil.copytree(source, root)
+    (root / "meta" / "actionflow_recording.json").unlink()
+    for file in (root / "data").rglob("*.parquet"):
+        table = pq.read_table(file)
+        column = pa.array([[value]] * table.num_rows, type=pa.list_(pa.bool_()))
+        pq.write_table(table.append_column(generate.SUCCESS_KEY, column), file)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["features"][generate.SUCCESS_KEY] = {"dtype": "bool", "shape": [1], "names": None}
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    return root
