@@ -236,3 +236,30 @@ def _with_success_column(source: Path, root: Path, value: bool) -> Path:
     info["features"][generate.SUCCESS_KEY] = {"dtype": "bool", "shape": [1], "names": None}
     (root / "meta" / "info.json").write_text(json.dumps(info))
     return root
+
+
+FIXTURE_POLICY = Path(__file__).parent / "fixtures" / "policy_ipa_se3"
+"""A tiny saved ActionFlow policy on three tokens (Stack's eef, cube_a, cube_b), untrained."""
+
+
+def test_a_policy_is_recorded_through_the_recorder_and_only_its_successes_kept(tmp_path, monkeypatch):
+    """``actionflow-record --policy``: the checkpoint drives the env from each seed; an untrained policy's
+    failures are logged as failed seeds, none kept, and the run stops with an error naming the policy. A
+    missing checkpoint, or a policy together with a source, is refused before anything is written."""
+    from lerobot_actionflow.tools.record import recorder
+    from lerobot_actionflow.tools.record.cli import main as record_main
+
+    monkeypatch.setattr(recorder, "GENERATION_FAILURES", 0.05)  # give up after two failures
+    root = tmp_path / "rollouts"
+    with pytest.raises(RuntimeError, match="the policy failed 2 times"):
+        record(Recipe("Stack", "D0", 1, "local/pol", policy=str(FIXTURE_POLICY)), root, progress=False)
+    log = json.loads((root / "meta" / "actionflow_recording.json").read_text())
+    assert log["kept_seeds"] == [] and log["failed_seeds"] == [0, 1]
+    assert log["recipe"]["policy"] == str(FIXTURE_POLICY)
+    card = (root / "README.md").read_text()
+    assert "Successful rollouts of a trained policy" in card and "--policy" in card
+    with pytest.raises(ValueError, match="config.json"):
+        Recipe("Stack", "D0", 1, "local/pol", policy=str(tmp_path))
+    with pytest.raises(ValueError, match="not both"):
+        Recipe("Stack", "D0", 1, "local/pol", policy=str(FIXTURE_POLICY), source=str(tmp_path))
+    assert record_main(["--task", "Stack", "--episodes", "1", "--policy", str(tmp_path / "none")]) == 2

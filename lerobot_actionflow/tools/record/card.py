@@ -79,6 +79,20 @@ GENERATED_ROWS = (
 )
 
 
+POLICY_HEAD = """\
+Successful rollouts of a trained policy (checkpoint `{policy}`) on **`{env_id}`** (variant `{variant}`),
+recorded with `actionflow-record --policy` from the `gym_actionflow` simulation suite: each seed's layout was
+run closed loop by the policy and only the episodes it finished successfully were kept. Such a recording is
+a source for `actionflow-generate`.
+
+"""
+POLICY_ROWS = (
+    ("successful expert episodes only", "successful policy rollouts only"),
+    ("| expert noise | {noise} (waypoint offsets and action jitter scale; 0 = deterministic) |\n", ""),
+    ("| expert success rate |", "| policy success rate |"),
+)
+
+
 def _numbers(values: list[float]) -> str:
     """Numbers as info.json has them (rounded to 1e-6), without trailing zeros: ``0.55, 0, -0.0984``."""
     return ", ".join(np.format_float_positional(v, trim="-") for v in values)
@@ -144,10 +158,12 @@ def dataset_card_text(
     task = find_task(recipe.task)
     tried = sorted(log.kept_seeds + log.failed_seeds)
     template = resources.files(__package__).joinpath("dataset_card.md").read_text()
-    if recipe.source is not None:
-        template = GENERATED_HEAD + template.split("\n\n", 1)[1]
-        for expert, generated in GENERATED_ROWS:
-            template = template.replace(expert, generated)
+    if recipe.source is not None or recipe.policy is not None:
+        generated = recipe.source is not None
+        head, rows = (GENERATED_HEAD, GENERATED_ROWS) if generated else (POLICY_HEAD, POLICY_ROWS)
+        template = head + template.split("\n\n", 1)[1]
+        for expert, other in rows:
+            template = template.replace(expert, other)
     return template.format(
         env_id=task.env_id,
         variant=recipe.variant,
@@ -162,6 +178,7 @@ def dataset_card_text(
         features=_features_text(features, recipe.obs_layout),
         command=recipe.command(),
         source=recipe.source,
+        policy=recipe.policy,
     )
 
 

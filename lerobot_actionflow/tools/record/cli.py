@@ -7,6 +7,7 @@
     actionflow-record datasets/stack_d0_200.toml --workers 3                  # simulate in 3 processes
     actionflow-record datasets/stack_d0_lerobot_100.toml                      # LeRobot layout, 2 cameras
     actionflow-record push ~/.cache/huggingface/lerobot/actionflow/stack_d0_200 --to you/stack_d0_200
+    actionflow-record --task Stack --episodes 10 --policy outputs/train/checkpoints/last/pretrained_model
 
 Only successful expert episodes are kept; failures are counted and reported. Seeds are tried in order from
 ``--seed``, so a dataset is reproducible from its command, with any number of --workers. Every kept episode is
@@ -40,7 +41,7 @@ PROG = "actionflow-record"
 FLAGS = {
     "task": "--task", "variant": "--variant", "episodes": "--episodes", "seed": "--seed", "noise": "--noise",
     "obs_mode": "--obs-mode", "obs_layout": "--obs-layout", "cameras": "--cameras", "repo_id": "--repo-id",
-    "image_storage": "--image-storage",
+    "image_storage": "--image-storage", "policy": "--policy",
 }  # fmt: skip
 """Recipe field -> the flag that sets it, to name the flag in an error about its value."""
 INPUT_ERRORS = (ValueError, FileNotFoundError, FileExistsError, RuntimeError)
@@ -112,6 +113,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--env-kwarg", action="append", type=_parse_env_kwarg, default=[], metavar="KEY=VALUE",
         help="extra gym.make keyword, repeatable (e.g. hanger_obs=point_cloud)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--policy", metavar="CHECKPOINT",
+        help="record this trained policy's rollouts instead of the scripted expert's, the successful ones "
+        "only (a pretrained_model folder; its observation settings must match the recording's)",
     )  # fmt: skip
     parser.add_argument("--repo-id", help="dataset repo id (default: actionflow/<task>_<variant>_<episodes>)")
     parser.add_argument("--root", type=Path, help="dataset directory (default: $HF_LEROBOT_HOME/<repo id>)")
@@ -219,14 +225,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     log = result.log
     rate = f"{log.success_rate:.1%}" if log.kept_seeds or log.failed_seeds else "n/a"
+    who = "policy" if recipe.policy is not None else "expert"
     if result.kept_now == 0 and result.failed_now == 0 and not result.replayed:
-        print(f"{result.episodes} episodes in {result.root}: already complete; expert success {rate}")
+        print(f"{result.episodes} episodes in {result.root}: already complete; {who} success {rate}")
     else:
         per_min = 60 * result.kept_now / max(result.seconds, 1e-9)
         replayed = f", {result.replayed} replayed from the journal" if result.replayed else ""
         print(
             f"{result.episodes} episodes in {result.root} (this run: {result.kept_now} kept, "
-            f"{result.failed_now} failed{replayed}, {per_min:.1f} episodes/min); expert success over all "
+            f"{result.failed_now} failed{replayed}, {per_min:.1f} episodes/min); {who} success over all "
             f"seeds tried: {rate}"
         )
     if args.push_to_hub:

@@ -49,7 +49,8 @@ class RecordingLog:
         return cls(**data)
 
 
-_ADDED_FIELDS = {"obs_layout": "tokens", "cameras": None, "image_storage": "video", "source": None}
+_ADDED_FIELDS = {"obs_layout": "tokens", "cameras": None, "image_storage": "video", "source": None,
+                 "policy": None}
 """Recipe fields added after the first recordings, with the value an older log (which lacks them) meant."""
 
 

@@ -57,6 +57,9 @@ class Recipe:
     source: str | None = None
     """A source dataset's folder: the episodes are generated from its demonstrations
     (``actionflow-generate``, :mod:`lerobot_actionflow.tools.generate`) instead of the scripted expert's."""
+    policy: str | None = None
+    """A trained policy's checkpoint (a ``pretrained_model`` folder): its rollouts are recorded instead of the
+    scripted expert's, the successful ones only (``actionflow-record --policy``)."""
 
     REQUIRED = ("task", "variant", "episodes", "repo_id")
 
@@ -96,6 +99,8 @@ class Recipe:
             args += ["--image-storage", self.image_storage]
         for key, value in self.env_kwargs.items():
             args += ["--env-kwarg", f"{key}={value}"]
+        if self.policy is not None:
+            args += ["--policy", self.policy]
         return shlex.join([*args, "--repo-id", self.repo_id])
 
 
@@ -205,6 +210,13 @@ def check_fields(values: Mapping[str, Any], label: Label = str) -> None:
         _check_env_kwargs(task, values["env_kwargs"], label)
     if values.get("source") is not None and not isinstance(values["source"], str):
         fail("source", "the path of a source dataset's folder, or none")
+    if values.get("policy") is not None:
+        if not isinstance(values["policy"], str):
+            fail("policy", "the path of a trained policy's pretrained_model folder, or none")
+        if not (Path(values["policy"]) / "config.json").is_file():
+            fail("policy", "a pretrained_model folder with its config.json (lerobot-train's checkpoints/*/)")
+        if values.get("source") is not None:
+            fail("policy", "no source with it: an episode comes from a policy or from a source, not both")
 
 
 TRAINING_TABLES = ("train", "eval")

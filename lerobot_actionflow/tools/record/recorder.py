@@ -98,8 +98,8 @@ def _features(env, image_storage: str) -> dict[str, dict]:
 
 
 GENERATION_FAILURES = 20
-"""Generated episodes may fail this many times as often as an expert's before a run gives up (success rates
-down to about 5 %)."""
+"""Generated episodes, and a policy's rollouts, may fail this many times as often as an expert's before a run
+gives up (success rates down to about 5 %)."""
 
 IMAGE_DATA_FILE_MB = 1
 """Data file size (MB) of datasets with PNG frames: LeRobot's streaming loader interleaves up to 16 files
@@ -271,9 +271,11 @@ def record(
     dataset = _Checkpointed(ds, root, recipe.repo_id, checkpoint_every)
     # An expert at < 50 % means something is wrong: stop early. Generated episodes fail more often by nature
     # (MimicGen's rates run from under 10 % to 100 %): they may fail up to GENERATION_FAILURES times as often.
+    # A policy's rollouts likewise.
     generated = recipe.source is not None
-    max_failures = max(20, recipe.episodes) * (GENERATION_FAILURES if generated else 1)
-    who = "generation" if generated else f"the {task.name} expert"
+    learned = generated or recipe.policy is not None
+    max_failures = max(20, recipe.episodes) * (GENERATION_FAILURES if learned else 1)
+    who = "generation" if generated else ("the policy" if learned else f"the {task.name} expert")
     run_start = start = time.time()
     kept_now = failed_now = 0
     half_written = False  # an exception in a LeRobot write: leave the rest to the next run's roll-back

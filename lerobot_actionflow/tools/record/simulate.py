@@ -20,6 +20,7 @@ from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -80,6 +81,11 @@ def simulate(env, recipe: Recipe, seed: int) -> Episode:
 
         source = cached_source(recipe.source, recipe.task)
         success = run_generated(env, source, seed, recipe.noise, on_step=keep)
+    elif recipe.policy is not None:  # a trained policy's rollout (actionflow-record --policy)
+        from gym_actionflow.rollout import rollout
+
+        act = policy_actor(recipe.policy, seed)
+        success = rollout(env, act, seed, on_step=keep).success
     else:
         expert = make_expert(env, noise=recipe.noise, seed=seed)
         success = run_episode(env, expert, seed, on_step=keep).success
@@ -87,6 +93,41 @@ def simulate(env, recipe: Recipe, seed: int) -> Episode:
         return Episode(seed, False, {}, task)
     columns = {key: np.stack([frame[key] for frame in frames]) for key in frames[0] if key != "task"}
     return Episode(seed, True, columns, task)
+
+
+_policies: dict[str, tuple] = {}
+"""Loaded policies by checkpoint path, one load per process (the recording's, or each worker's)."""
+
+
+def policy_actor(checkpoint: str, seed: int):
+    """``act(obs) -> action`` of the trained policy at ``checkpoint`` for one episode: its state reset, torch
+    seeded with the episode's seed (so a rollout is a function of its seed), the observation through the
+    policy's saved processors (ActionFlow's defaults where a checkpoint has none: its normalisation is the
+    identity)."""
+    import torch
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    from lerobot_actionflow import schema
+
+    if checkpoint not in _policies:
+        config = PreTrainedConfig.from_pretrained(checkpoint)
+        policy = get_policy_class(config.type).from_pretrained(checkpoint, config=config).eval()
+        saved = (Path(checkpoint) / "policy_preprocessor.json").is_file()
+        if not saved and config.type != "actionflow":
+            raise ValueError(f"--policy {checkpoint}: no saved processors (policy_preprocessor.json)")
+        kwargs = {"pretrained_path": checkpoint} if saved else {}
+        _policies[checkpoint] = (policy, *make_pre_post_processors(policy.config, **kwargs))
+    policy, pre, post = _policies[checkpoint]
+    policy.reset()
+    torch.manual_seed(seed)
+
+    def act(obs: dict) -> np.ndarray:
+        with torch.inference_mode():
+            action = post(policy.select_action(pre(schema.policy_batch(obs))))
+        return action[0].cpu().numpy().astype(np.float32)
+
+    return act
 
 
 def episodes(recipe: Recipe, first_seed: int, workers: int, env=None) -> Iterator[Episode]:
