@@ -102,8 +102,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--speed-episodes", type=int, default=50, help="episodes of each speed run")
     parser.add_argument("--tasks", nargs="+", help="only these tasks")
     parser.add_argument("--sources", type=Path, default=Path("outputs/gen"), help="source datasets' folder")
+    parser.add_argument(
+        "--source", action="append", default=[], metavar="TASK=PATH",
+        help="generate TASK from this dataset instead of its expert source (e.g. a policy's rollouts, "
+        "recorded by actionflow-record --policy); repeatable",
+    )  # fmt: skip
+    parser.add_argument(
+        "--parts", nargs="+", choices=("rates", "speed"), default=["rates", "speed"],
+        help="the generation rates per task, the speed with 1 and 2 workers, or both (default)",
+    )  # fmt: skip
     add_out_argument(parser)
     args = parser.parse_args(argv)
+    given = dict(text.split("=", 1) for text in args.source)
 
     made_by = portable_command([sys.executable, "-m", "eval.bench.generate", *(argv or sys.argv[1:])])
     lines = [
@@ -113,20 +123,23 @@ def main(argv: list[str] | None = None) -> None:
         "those sources (D1 / D2 and MugHanging `test` from D0 / `train` sources). MimicGen's column: its "
         "paper's appendix Table P.1 as quoted by summaries of the paper (robosuite, 10 *human* source "
         "demonstrations), not read from the paper here.", "",
-        "| task | variant | env keywords | kept / tried | generation rate | MimicGen | s per try |",
-        "|---|---|---|---|---|---|---|",
+        *[f"Source of {task} instead: `{path}`." for task, path in given.items()], "",
     ]  # fmt: skip
-    for task, variant, env_kwargs in ROWS:
+    if "rates" in args.parts:
+        lines += ["| task | variant | env keywords | kept / tried | generation rate | MimicGen | s per try |",
+                  "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for task, variant, env_kwargs in ROWS if "rates" in args.parts else ():
         if args.tasks and task not in args.tasks:
             continue
-        kept, seconds = rate(task, variant, env_kwargs, source_root(args.sources, task), args.attempts)
+        source = Path(given[task]) if task in given else source_root(args.sources, task)
+        kept, seconds = rate(task, variant, env_kwargs, source, args.attempts)
         published = MIMICGEN.get((task, variant))
         keywords = ", ".join(f"{k}={v}" for k, v in env_kwargs.items()) or "-"
         theirs = f"{published:g} %" if published else ""
         lines.append(f"| {task} | {variant} | {keywords} | {kept} / {args.attempts} | "
                      f"{kept / args.attempts:.0%} | {theirs} | {seconds:.2f} |")  # fmt: skip
         print(lines[-1], flush=True)
-    if not args.tasks or "Stack" in args.tasks:
+    if "speed" in args.parts and (not args.tasks or "Stack" in args.tasks):
         lines += ["", "| workers | generated episodes / min (Stack D1, dataset written) | command |",
                   "|---|---|---|"]  # fmt: skip
         stack = source_root(args.sources, "Stack")
@@ -135,7 +148,8 @@ def main(argv: list[str] | None = None) -> None:
             lines.append(f"| {workers} | {per_min:.0f} | `{cmd}` |")
             print(lines[-1], flush=True)
     lines += ["", describe(), ""]
-    write_result(args.out, "generate_cpu.md", "\n".join(lines))
+    name = "generate_speed_cpu.md" if args.parts == ["speed"] else "generate_cpu.md"
+    write_result(args.out, name, "\n".join(lines))
 
 
 if __name__ == "__main__":
