@@ -192,6 +192,9 @@ def test_generate_writes_a_dataset_for_layouts_the_sources_never_showed(stack_so
     assert generate.main(argv) == 0  # finished: nothing generated again
     assert "2 episodes generated" in capsys.readouterr().out
     assert LeRobotDataset("local/stack_d1_gen2", root=out).meta.total_episodes == 2
+    other = [*argv[:4], "D0", *argv[5:]]  # the same --root, another recording: refused, nothing written
+    assert generate.main(other) == 2
+    assert "holds a different recording" in capsys.readouterr().err
 
 
 def test_bad_sources_are_refused_by_name(stack_source, tmp_path):

@@ -395,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from gym_actionflow import find_task
 
-    from lerobot_actionflow.tools.record.cli import _parse_env_kwarg
+    from lerobot_actionflow.tools.record.cli import INPUT_ERRORS, _parse_env_kwarg
     from lerobot_actionflow.tools.record.recipe import Recipe
     from lerobot_actionflow.tools.record.recorder import record
 
@@ -417,7 +417,14 @@ def main(argv: list[str] | None = None) -> int:
     used = len(source.episodes)
     print(f"{spec.name}: {used} source episodes in {len(spec.subtasks)} subtasks ({describe(spec.subtasks)})"
           + (f"; left out {len(source.skipped)}: {source.skipped}" if source.skipped else ""))  # fmt: skip
-    result = record(recipe, args.root, progress=not args.quiet, workers=args.workers)
+    try:
+        result = record(recipe, args.root, progress=not args.quiet, workers=args.workers)
+    except KeyboardInterrupt:
+        print("\nInterrupted: every finished episode is saved; run the same command again to resume.")
+        return 130
+    except INPUT_ERRORS as err:  # another recording at --root, a bad keyword, generation failing throughout
+        print(f"actionflow-generate: error: {err}", file=sys.stderr)
+        return 2
     tried = len(result.log.kept_seeds) + len(result.log.failed_seeds)
     print(f"{result.root}: {result.episodes} episodes generated of {tried} tried "
           f"({result.log.success_rate:.0%}), {result.seconds:.0f} s this run")  # fmt: skip
