@@ -395,6 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from gym_actionflow import find_task
 
+    from lerobot_actionflow.recipes import snake
     from lerobot_actionflow.tools.record.cli import INPUT_ERRORS, _parse_env_kwarg
     from lerobot_actionflow.tools.record.recipe import Recipe
     from lerobot_actionflow.tools.record.recorder import record
@@ -408,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
         source = load_source(args.source, spec.name)  # every bad source is refused before anything is written
         recipe = Recipe(
             task=spec.name, variant=variant, episodes=args.episodes, seed=args.seed, noise=args.noise,
-            repo_id=args.repo_id or f"actionflow/{_snake(spec.name)}_{variant.lower()}_gen{args.episodes}",
+            repo_id=args.repo_id or f"actionflow/{snake(spec.name)}_{variant.lower()}_gen{args.episodes}",
             obs_mode=args.obs_mode, cameras=args.cameras, env_kwargs=env_kwargs,
             source=str(args.source),
         )  # fmt: skip
@@ -434,10 +435,6 @@ def main(argv: list[str] | None = None) -> int:
 def describe(subtasks) -> str:
     """``cube_a, cube_b carrying cube_a, cube_b``."""
     return ", ".join(s.object + (f" carrying {s.carried}" if s.carried else "") for s in subtasks)
-
-
-def _snake(name: str) -> str:
-    return "".join("_" + c.lower() if c.isupper() else c for c in name).lstrip("_")
 
 
 if __name__ == "__main__":
