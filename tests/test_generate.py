@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gym_actionflow import find_task
-from gym_actionflow.registry import TASKS
+from gym_actionflow.registry import ROUND, TASKS
 from scipy.spatial.transform import Rotation, Slerp
 
 from lerobot_actionflow.tools import generate
@@ -126,6 +126,35 @@ def test_a_segment_moves_rigidly_with_its_object_and_a_carried_object_retraces_i
     for action, target in zip(moved, targets, strict=True):
         cup_world = to_matrix(action[:9]) @ now_in_hand
         np.testing.assert_allclose(cup_world, motion @ target @ src_in_hand, atol=1e-6)
+
+
+def test_a_symmetric_object_is_taken_at_the_equivalent_pose_that_turns_the_hand_least():
+    """A cube turned by 100 degrees about its vertical axis: with four-fold symmetry the segment turns the
+    hand by 10 degrees (the equivalent pose 90 degrees back), against the full 100 without symmetry; every
+    target is still the source's moved rigidly by one equivalent motion of the cube."""
+    from gym_actionflow.experts.base import top_down
+    from gym_actionflow.geometry import yaw_matrix
+
+    src_obj = _hom(np.eye(3), np.array([0.1, 0.0, 0.02]))
+    new_obj = _hom(yaw_matrix(np.radians(100)), np.array([-0.1, 0.1, 0.02]))
+    hand = _hom(top_down(0.0), np.array([0.0, 0.0, 0.3]))
+    targets = [_hom(top_down(0.0), src_obj[:3, 3] + [0, 0, z]) for z in (0.1, 0.05, 0.0)]
+    actions = np.array([np.concatenate([to_pose9(t), [-1.0]]) for t in targets])
+
+    def turn_of_first_target(symmetry: int) -> float:
+        segment = Segment(0, "cube", src_obj, actions, symmetry=symmetry)
+        player = SegmentPlayer(_FakeEnv(hand, {"cube": new_obj}), Source("s", "T", [[segment]]), seed=0)
+        played = _played(player)[-(len(targets) + generate.HOLD_STEPS) : -generate.HOLD_STEPS]
+        moved = [to_matrix(a[:9]) for a in played]
+        motion = moved[0] @ np.linalg.inv(targets[0])
+        for m, t in zip(moved, targets, strict=True):
+            np.testing.assert_allclose(m, motion @ t, atol=1e-9)
+        np.testing.assert_allclose(motion[:3, 3] + motion[:3, :3] @ src_obj[:3, 3], new_obj[:3, 3], atol=1e-9)
+        return np.degrees(Rotation.from_matrix(hand[:3, :3].T @ moved[0][:3, :3]).magnitude())
+
+    assert turn_of_first_target(4) == pytest.approx(10.0, abs=1e-6)
+    assert turn_of_first_target(1) == pytest.approx(100.0, abs=1e-6)
+    assert turn_of_first_target(ROUND) == pytest.approx(0.0, abs=0.5)  # a round object: any yaw is its own
 
 
 def test_every_generatable_task_names_tokens_its_env_has():

@@ -68,12 +68,24 @@ def check_observation(
     return chosen
 
 
+ROUND = 360
+"""The symmetry of a solid of revolution about its own z axis (a pod), taken in one-degree steps."""
+
+
 class Subtask(NamedTuple):
     """One object-centric subtask of a task: the token of the object its motion is relative to, and the token
-    of the object the hand carries through it (None: nothing held, or nothing whose pose matters)."""
+    of the object the hand carries through it (None: nothing held, or nothing whose pose matters).
+
+    ``symmetry`` and ``carried_symmetry`` say what the subtask cannot tell apart: n when the part of the
+    object it acts on looks the same turned by 360/n degrees about the object's own z axis (a cube 4, a
+    half-turn-symmetric piece 2, a round pod :data:`ROUND`, no symmetry 1). ``actionflow-generate`` then
+    moves a segment with whichever of the object's n equivalent poses turns the hand least, as the scripted
+    experts pick the nearest equivalent grasp, instead of turning the wrist with every random yaw."""
 
     object: str
     carried: str | None = None
+    symmetry: int = 1
+    carried_symmetry: int = 1
 
 
 @dataclass(frozen=True)
@@ -92,8 +104,9 @@ class TaskSpec:
     subtasks: tuple[Subtask, ...] = ()
     """The task's object-centric subtasks, in order: an episode is cut into them where the gripper command
     changes sign (closes on an object, opens to release it), so a task with k gripper changes has k + 1
-    subtasks, the last running to the episode's end. Stack: reach and grasp cube A (``Subtask("cube_a")``);
-    carry it onto cube B and open (``Subtask("cube_b", carried="cube_a")``); leave (``Subtask("cube_b")``).
+    subtasks, the last running to the episode's end. Stack: reach and grasp cube A
+    (``Subtask("cube_a", None, 4)``: a cube looks the same every quarter turn); carry it onto cube B and open
+    (``Subtask("cube_b", "cube_a", 4, 4)``); leave (``Subtask("cube_b", None, 4)``).
     What ``actionflow-generate`` moves into a new layout (empty: the task cannot be generated)."""
 
     @property
@@ -154,7 +167,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.stack_three:StackExpert",
         200,
         ("D0", "D1"),
-        subtasks=(_S("cube_a"), _S("cube_b", "cube_a"), _S("cube_b")),
+        subtasks=(_S("cube_a", None, 4), _S("cube_b", "cube_a", 4, 4), _S("cube_b", None, 4)),
     ),
     TaskSpec(
         "StackThree",
@@ -162,7 +175,13 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.stack_three:StackThreeExpert",
         400,
         ("D0", "D1"),
-        subtasks=(_S("cube_a"), _S("cube_b", "cube_a"), _S("cube_c"), _S("cube_a", "cube_c"), _S("cube_a")),
+        subtasks=(
+            _S("cube_a", None, 4),
+            _S("cube_b", "cube_a", 4, 4),
+            _S("cube_c", None, 4),
+            _S("cube_a", "cube_c", 4, 4),
+            _S("cube_a", None, 4),
+        ),
     ),
     TaskSpec(
         "ThreePieceAssembly",
@@ -171,7 +190,12 @@ TASKS: tuple[TaskSpec, ...] = (
         500,
         ("D0", "D1", "D2"),
         subtasks=(
-            _S("piece_1"), _S("base", "piece_1"), _S("piece_2"), _S("piece_1", "piece_2"), _S("piece_1")
+            # The socket turns a quarter; each piece's grip and seat a half (the slab fits any quarter turn).
+            _S("piece_1", None, 2),
+            _S("base", "piece_1", 4, 4),
+            _S("piece_2", None, 2),
+            _S("piece_1", "piece_2", 2, 2),
+            _S("piece_1", None, 2),
         ),
     ),
     TaskSpec(
@@ -180,7 +204,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.coffee:CoffeeExpert",
         500,
         ("D0", "D1", "D2"),
-        subtasks=(_S("pod"), _S("machine", "pod"), _S("lid"), _S("machine")),
+        subtasks=(_S("pod", None, ROUND), _S("machine", "pod", 1, ROUND), _S("lid"), _S("machine")),
     ),
     TaskSpec(
         "Threading",
@@ -196,7 +220,7 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.lightbulb:LightbulbExpert",
         300,
         ("D0",),
-        subtasks=(_S("socket", "bulb"),),
+        subtasks=(_S("socket", "bulb", 2, 2),),  # two slots, two pins
     ),
     TaskSpec(
         "MugHanging",
@@ -204,7 +228,8 @@ TASKS: tuple[TaskSpec, ...] = (
         "gym_actionflow.experts.mug_hanging:MugHangingExpert",
         400,
         ("train", "test", "scene_moved"),
-        subtasks=(_S("mug"), _S("hanger", "mug"), _S("hanger")),
+        # The rim is gripped modulo a half turn, as the expert does; the hanging needs the handle's true pose.
+        subtasks=(_S("mug", None, 2), _S("hanger", "mug"), _S("hanger")),
     ),
     # Robomimic's tasks, simulated by robosuite itself (installed by `make robosuite`; imported when made).
     TaskSpec(

@@ -20,7 +20,12 @@ How (Mandlekar et al., MimicGen, 2023):
    cube B wherever it is. Beyond MimicGen, a subtask that carries an object also corrects for how that
    object sits in the hand now (``H_new``) against the source (``H_src``): ``T' = O_new O_src^-1 T H_src
    H_new^-1``, so the carried object, not the hand, retraces the source's path (a bulb grasped 2 mm
-   higher still reaches the socket).
+   higher still reaches the socket). Also beyond MimicGen, a symmetric object (``Subtask.symmetry``: a cube
+   looks the same every quarter turn) is taken at whichever of its equivalent poses ``O_new Z_k`` keeps the
+   segment's hand nearest where it is (:func:`least_turn`), as the experts grasp a cube by the faces nearest
+   the wrist. MimicGen's plain transform turns the wrist with every random yaw of the cube, anywhere in the
+   circle, which the experts never do (Stack Three D1 trained on such data: 0 % against 70 % from expert
+   data).
 3. **Link** the current target to the first transformed one by a straight, evenly timed motion (position along
    a line, rotation along the geodesic, at the scripted experts' speeds), the gripper held as it was.
 4. **Execute** in the env and keep only the successes.
@@ -105,6 +110,36 @@ def link(start: np.ndarray, end: np.ndarray) -> list[np.ndarray]:
     return out
 
 
+def turns(n: int) -> np.ndarray:
+    """``[n, 4, 4]``: the rotations by 360/n degrees x k (k < n) about the z axis, the equivalent frames of an
+    object with n-fold symmetry (``Subtask.symmetry``) when right-multiplied onto its pose."""
+    from gym_actionflow.geometry import yaw_matrix
+
+    out = np.tile(np.eye(4), (n, 1, 1))
+    for k in range(n):
+        out[k, :3, :3] = yaw_matrix(2 * np.pi * k / n)
+    return out
+
+
+def least_turn(
+    hand: np.ndarray, moves: np.ndarray, targets: np.ndarray, regrips: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Of the equivalent transforms of a segment's ``targets`` ``[L, 4, 4]`` (``moves[k] @ T @ regrips[j]``,
+    one per symmetric pose of the reference and of the carried object), the pair that keeps the segment
+    nearest the hand as it is now: the least mean over its targets of the time a link from ``hand`` would
+    take (distance over :data:`LINK_SPEED` plus turn over :data:`LINK_ROT_SPEED`). So a cube is grasped by
+    the faces nearest the wrist's yaw and set down at the turn nearest the one it is held at, as the experts
+    do; turning the reference and the carried object together can leave the hand's rotation as it was and
+    move only where the path runs, hence the distance."""
+    moved = np.einsum("kab,lbc,jcd->kjlad", moves, targets, regrips)
+    cos = (np.einsum("ab,kjlab->kjl", hand[:3, :3], moved[..., :3, :3]) - 1.0) / 2.0
+    angle = np.arccos(np.clip(cos, -1.0, 1.0))  # trace(hand^T target) = 1 + 2 cos(angle)
+    distance = np.linalg.norm(moved[..., :3, 3] - hand[:3, 3], axis=-1)
+    cost = (distance / LINK_SPEED + angle / LINK_ROT_SPEED).mean(axis=-1)
+    k, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    return moves[k], regrips[j]
+
+
 # ---------------------------------------------------------------------------- sources
 @dataclass
 class Segment:
@@ -119,6 +154,9 @@ class Segment:
     carried: str | None = None
     in_hand: np.ndarray | None = None
     """The carried object's pose in the end-effector frame at the segment's first frame (4x4)."""
+    symmetry: int = 1
+    carried_symmetry: int = 1
+    """n-fold symmetries about the reference's and the carried object's z axes (``Subtask``)."""
 
 
 @dataclass
@@ -242,7 +280,12 @@ def load_source(root: str | Path, task: str) -> Source:
             if sub.carried:
                 eef = to_matrix(token_poses[first, 0])  # token 0 is the end effector
                 in_hand = np.linalg.inv(eef) @ to_matrix(token_poses[first, tokens.index(sub.carried)])
-            segments[i].append(Segment(episode, sub.object, pose, actions[first:last], sub.carried, in_hand))
+            segments[i].append(
+                Segment(
+                    episode, sub.object, pose, actions[first:last], sub.carried, in_hand,
+                    sub.symmetry, sub.carried_symmetry,
+                )
+            )
     if not segments[0]:
         reasons = "; ".join(f"episode {e}: {why}" for e, why in list(skipped.items())[:5])
         raise ValueError(f"source {root} has no usable successful episode ({reasons})")
@@ -287,14 +330,17 @@ class SegmentPlayer:
                 f"the env has no object {segment.reference!r} ({list(objects)}); its observation settings "
                 "must keep the objects the subtasks act on"
             )
-        move = _matrix(*objects[segment.reference]) @ np.linalg.inv(segment.object_pose)
+        reference = _matrix(*objects[segment.reference])
+        moves = reference @ turns(segment.symmetry) @ np.linalg.inv(segment.object_pose)
         # A carried object sits in the hand as it does now, not as in the source: correct the hand's targets
         # so that the object, not the hand, follows the source's path relative to the reference.
-        regrip = np.eye(4)
+        regrips = np.eye(4)[None]
         if segment.carried is not None:
             in_hand_now = np.linalg.inv(_matrix(*self.env.tcp_pose())) @ _matrix(*objects[segment.carried])
-            regrip = segment.in_hand @ np.linalg.inv(in_hand_now)
-        targets = [move @ to_matrix(a[:9]) @ regrip for a in segment.actions]
+            regrips = segment.in_hand @ turns(segment.carried_symmetry) @ np.linalg.inv(in_hand_now)
+        source = np.array([to_matrix(a[:9]) for a in segment.actions])
+        move, regrip = least_turn(self.target, moves, source, regrips)
+        targets = [move @ target @ regrip for target in source]
         self.queue = [(m, self.grip) for m in link(self.target, targets[0])[:-1]]
         self.queue += [(m, float(a[-1])) for m, a in zip(targets, segment.actions, strict=True)]
         self.subtask += 1
