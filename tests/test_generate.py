@@ -295,3 +295,29 @@ def test_a_policy_is_recorded_through_the_recorder_and_only_its_successes_kept(t
     with pytest.raises(ValueError, match="not both"):
         Recipe("Stack", "D0", 1, "local/pol", policy=str(FIXTURE_POLICY), source=str(tmp_path))
     assert record_main(["--task", "Stack", "--episodes", "1", "--policy", str(tmp_path / "none")]) == 2
+
+
+def test_generation_through_ray_actors_is_the_local_generation(stack_source, tmp_path, monkeypatch):
+    """``--executor ray --workers 2``: two Ray actors (on a Ray started by the command) simulate, the source
+    shipped to them from here; the kept and failed seeds and every frame equal the local run's."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")  # a local Ray for one test: no token file in $HOME
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    log_name = "actionflow_recording.json"
+    base = [str(stack_source), "--task", "Stack", "--variant", "D1", "--episodes", "2", "--seed", "2000",
+            "--repo-id", "local/stack_gen2", "--quiet"]  # fmt: skip
+    assert generate.main([*base, "--root", str(tmp_path / "local")]) == 0
+    assert generate.main([*base, "--root", str(tmp_path / "ray"), "--executor", "ray", "--workers", "2"]) == 0
+    logs = [json.loads((tmp_path / r / "meta" / log_name).read_text()) for r in ("local", "ray")]
+    seeds = [(log["kept_seeds"], log["failed_seeds"]) for log in logs]
+    assert seeds[1] == seeds[0]
+    local, ray = (
+        LeRobotDataset("local/stack_gen2", root=tmp_path / r).hf_dataset.with_format("numpy")[:]
+        for r in ("local", "ray")
+    )
+    assert local.keys() == ray.keys()
+    for key in local:
+        np.testing.assert_array_equal(np.stack(ray[key]), np.stack(local[key]), err_msg=key)
+    with pytest.raises(SystemExit):  # an address is a Ray cluster's: it needs --executor ray
+        generate.main([*base, "--root", str(tmp_path / "x"), "--address", "head:6379"])

@@ -385,6 +385,12 @@ def run_generated(env, source: Source, seed: int, noise: float = 0.0, on_step=No
 _sources: dict[tuple[str, str], Source] = {}
 
 
+def remember_source(root: str, task: str, source: Source) -> None:
+    """Make ``source`` the one :func:`cached_source` returns for ``(root, task)`` in this process (a Ray
+    actor given the driver's source, where ``root`` may not exist)."""
+    _sources[(str(root), task)] = source
+
+
 def cached_source(root: str, task: str) -> Source:
     """The segmented source, read once per process (the recorder's workers each read it once)."""
     key = (str(root), task)
@@ -413,6 +419,8 @@ def write_generation_file(root: Path, source: Source, seeds: list[int]) -> dict:
 
 # ---------------------------------------------------------------------------- command line
 def build_parser() -> argparse.ArgumentParser:
+    from lerobot_actionflow.tools.record.cli import _workers, add_executor_arguments
+
     parser = argparse.ArgumentParser(
         prog="actionflow-generate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -433,7 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     parser.add_argument("--repo-id", help="repo id (default: actionflow/<task>_<variant>_gen<episodes>)")
     parser.add_argument("--root", type=Path, help="output folder (default: $HF_LEROBOT_HOME/<repo id>)")
-    parser.add_argument("--workers", type=int, default=1, help="simulation processes (default 1)")
+    parser.add_argument("--workers", type=_workers, default=1, help="simulation processes (default 1)")
+    add_executor_arguments(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
@@ -442,7 +451,7 @@ def main(argv: list[str] | None = None) -> int:
     from gym_actionflow import find_task
 
     from lerobot_actionflow.recipes import snake
-    from lerobot_actionflow.tools.record.cli import INPUT_ERRORS, _parse_env_kwarg
+    from lerobot_actionflow.tools.record.cli import INPUT_ERRORS, _parse_env_kwarg, executor_kwargs
     from lerobot_actionflow.tools.record.recipe import Recipe
     from lerobot_actionflow.tools.record.recorder import record
 
@@ -465,7 +474,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{spec.name}: {used} source episodes in {len(spec.subtasks)} subtasks ({describe(spec.subtasks)})"
           + (f"; left out {len(source.skipped)}: {source.skipped}" if source.skipped else ""))  # fmt: skip
     try:
-        result = record(recipe, args.root, progress=not args.quiet, workers=args.workers)
+        result = record(
+            recipe, args.root, progress=not args.quiet, workers=args.workers, **executor_kwargs(args, parser)
+        )
     except KeyboardInterrupt:
         print("\nInterrupted: every finished episode is saved; run the same command again to resume.")
         return 130

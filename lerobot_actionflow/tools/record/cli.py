@@ -36,6 +36,7 @@ from typing import Any
 from lerobot_actionflow.tools.record.hub import check_hub_credentials, check_pushable, push
 from lerobot_actionflow.tools.record.recipe import Recipe, check_fields, load_recipe, recipe_label
 from lerobot_actionflow.tools.record.recorder import record
+from lerobot_actionflow.tools.record.simulate import EXECUTORS
 
 PROG = "actionflow-record"
 FLAGS = {
@@ -133,8 +134,29 @@ def build_parser() -> argparse.ArgumentParser:
         "both, taking one core and leaving the others to what else runs, e.g. training). On a free machine, "
         "use about as many as free cores; the dataset is the same for any N",
     )  # fmt: skip
+    add_executor_arguments(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address``: where the episodes are simulated (the dataset is written here)."""
+    parser.add_argument(
+        "--executor", choices=EXECUTORS, default="local",
+        help="local (default): this process or --workers processes here; ray: --workers Ray actors of one "
+        "CPU each, on a Ray started here or on the cluster at --address (pip install '.[ray]'). The dataset "
+        "is the same either way",
+    )  # fmt: skip
+    parser.add_argument(
+        "--address", metavar="HOST:PORT", help="with --executor ray: join this Ray cluster (e.g. HEAD:6379)"
+    )
+
+
+def executor_kwargs(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
+    """``record()``'s executor and address from the parsed flags (--address alone is a usage error)."""
+    if args.address is not None and args.executor != "ray":
+        parser.error(f"--address {args.address}: a Ray cluster's address; add --executor ray")
+    return {"executor": args.executor, "address": args.address}
 
 
 def build_push_parser() -> argparse.ArgumentParser:
@@ -216,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
         recipe = recipe_from_args(args, parser)
         if args.push_to_hub:
             check_hub_credentials()
-        result = record(recipe, root=args.root, progress=not args.quiet, workers=args.workers)
+        where = executor_kwargs(args, parser)
+        result = record(recipe, root=args.root, progress=not args.quiet, workers=args.workers, **where)
     except KeyboardInterrupt:
         print("\nInterrupted: every finished episode is saved; run the same command again to resume.")
         return 130

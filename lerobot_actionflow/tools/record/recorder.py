@@ -30,7 +30,7 @@ from lerobot_actionflow.tools.record.durability import (
 )
 from lerobot_actionflow.tools.record.log import LOG_NAME, RecordingLog, same_recording
 from lerobot_actionflow.tools.record.recipe import Recipe
-from lerobot_actionflow.tools.record.simulate import Episode, episodes, make_env
+from lerobot_actionflow.tools.record.simulate import EXECUTORS, Episode, episodes, make_env
 
 FPS = 20
 CHECKPOINT_EVERY = 50
@@ -234,12 +234,17 @@ def record(
     progress: bool = True,
     workers: int = 1,
     checkpoint_every: int = CHECKPOINT_EVERY,
+    executor: str = "local",
+    address: str | None = None,
 ) -> RecordResult:
     """Record ``recipe`` into a LeRobotDataset at ``root`` (default ``$HF_LEROBOT_HOME/<repo_id>``), or finish
     recording it there.
 
     ``workers`` processes simulate the episodes (1: this process does); the dataset is the same for any
-    number. Episodes are made final in the dataset every ``checkpoint_every`` episodes (or every tenth of the
+    number. ``executor="ray"`` simulates in ``workers`` Ray actors instead, on a Ray started here or on the
+    cluster at ``address``; the dataset is still written here, and is the same again.
+
+    Episodes are made final in the dataset every ``checkpoint_every`` episodes (or every tenth of the
     dataset if that is more) and when the recording stops, also on Ctrl-C or SIGTERM; after a kill or a
     crash, the next run replays the kept episodes from the journal.
     """
@@ -251,6 +256,10 @@ def record(
         raise ValueError(
             f"workers={workers!r}; expected an integer >= 1 (1 simulates in the recording process)"
         )
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor={executor!r}; expected one of {EXECUTORS}")
+    if address is not None and executor != "ray":
+        raise ValueError(f"address={address!r} is a Ray cluster's; pass executor='ray' with it")
     if int(checkpoint_every) != checkpoint_every or checkpoint_every < 1:
         raise ValueError(f"checkpoint_every={checkpoint_every!r}; expected an integer >= 1")
     task = find_task(recipe.task)
@@ -264,7 +273,7 @@ def record(
     except Exception:
         env.close()
         raise
-    if workers > 1:
+    if workers > 1 or executor == "ray":
         env.close()  # the workers simulate, each on its own env
         env = None
     ds, log, replay = _open_dataset(recipe, root, features)
@@ -287,7 +296,7 @@ def record(
         unit="ep",
         disable=not progress,
     )
-    source = episodes(recipe, log.next_seed, workers, env)
+    source = episodes(recipe, log.next_seed, workers, env, executor, address)
     try:
         with _skip_empty_image_embedding(), contextlib.closing(source):
             for seed in replay:

@@ -130,13 +130,31 @@ def policy_actor(checkpoint: str, seed: int):
     return act
 
 
-def episodes(recipe: Recipe, first_seed: int, workers: int, env=None) -> Iterator[Episode]:
+EXECUTORS = ("local", "ray")
+"""Where episodes are simulated: ``local``, this process or a pool of worker processes on this machine;
+``ray``, Ray actors on this machine or on a cluster (the ``ray`` extra)."""
+
+
+def episodes(
+    recipe: Recipe,
+    first_seed: int,
+    workers: int,
+    env=None,
+    executor: str = "local",
+    address: str | None = None,
+) -> Iterator[Episode]:
     """Episodes from seeds ``first_seed, first_seed + 1, ...`` in that order, endlessly.
 
     ``workers == 1`` simulates here on ``env``; more runs a pool of that many worker processes, with up to
     :data:`LOOKAHEAD` seeds per worker in flight. Closing the generator (or an exception in it) stops the
     workers after the episodes under way; those are dropped, and their seeds are tried again by the next run.
+    ``executor="ray"`` simulates in ``workers`` Ray actors instead (:func:`_ray_episodes`).
     """
+    if executor == "ray":
+        yield from _ray_episodes(recipe, first_seed, workers, address)
+        return
+    if executor != "local":
+        raise ValueError(f"executor={executor!r}; expected one of {EXECUTORS}")
     seeds = itertools.count(first_seed)
     if workers == 1:
         if env is None:
@@ -197,3 +215,61 @@ def _simulate_in_worker(seed: int) -> Episode:
     if "env" not in _worker:  # made here, not in the initializer: an env error reaches the recording process
         _worker["env"] = make_env(_worker["recipe"])
     return simulate(_worker["env"], _worker["recipe"], seed)
+
+
+# ---------------------------------------------------------------------------- Ray
+class _Simulator:
+    """A Ray actor: one env, the recipe's episodes for the seeds it is given (in the order given)."""
+
+    def __init__(self, recipe: Recipe, source=None):
+        if source is not None:  # the driver read and cut the source: no node needs the source's files
+            from lerobot_actionflow.tools import generate
+
+            generate.remember_source(recipe.source, recipe.task, source)
+        self.recipe = recipe
+        self.env = make_env(recipe)
+
+    def simulate(self, seed: int) -> Episode:
+        return simulate(self.env, self.recipe, seed)
+
+
+def _ray_episodes(recipe: Recipe, first_seed: int, workers: int, address: str | None) -> Iterator[Episode]:
+    """:func:`episodes` on ``workers`` Ray actors of one CPU each: on a Ray started here (``address`` None,
+    with as many CPUs as workers) or on the cluster at ``address``. Seed ``first_seed + i`` goes to actor
+    ``i % workers`` and the episodes come back in seed order, so the recording is the one a local run makes.
+    A generation's source is read here and shipped to the actors; a ``--policy`` checkpoint must be at the
+    same path on every node."""
+    import logging
+
+    try:
+        import ray
+    except ImportError:
+        raise ImportError(
+            "executor 'ray' needs Ray: pip install 'lerobot_policy_actionflow[ray]' (or pip install ray)"
+        ) from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        local = {"num_cpus": workers} if address is None else {}
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
+                 **local)  # fmt: skip
+    actors = []
+    try:
+        source = None
+        if recipe.source is not None:
+            from lerobot_actionflow.tools.generate import cached_source
+
+            source = cached_source(recipe.source, recipe.task)
+        actor_class = ray.remote(num_cpus=1)(_Simulator)
+        actors = [actor_class.remote(recipe, source) for _ in range(workers)]
+        seeds = itertools.count(first_seed)
+        in_flight: deque = deque()
+        while True:
+            while len(in_flight) < LOOKAHEAD * workers:
+                seed = next(seeds)
+                in_flight.append(actors[(seed - first_seed) % workers].simulate.remote(seed))
+            yield ray.get(in_flight.popleft())  # an actor's error (its env, its episode) is raised here
+    finally:
+        for actor in actors:
+            ray.kill(actor)
+        if started_here:
+            ray.shutdown()
