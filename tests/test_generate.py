@@ -179,16 +179,18 @@ def stack_source(tmp_path_factory) -> Path:
     return root
 
 
-def test_a_source_replayed_on_its_own_layout_is_the_source(stack_source):
-    """Every segment drawn from the episode recorded on the same seed: the generated actions are the
-    recorded ones (the transforms are the identity, the links one step to where the hand already is)."""
+def test_a_source_replayed_on_its_own_layout_is_the_source(stack_source, monkeypatch):
+    """On the layout of source episode 0, its segments are the nearest (their links one step to where the
+    hand already is), and with the single nearest drawn the generated actions are the recorded ones (the
+    transforms are the identity)."""
     source = load_source(stack_source, "Stack")
     assert [len(c) for c in source.segments] == [3, 3, 3] and source.skipped == {}
     env = gym.make(find_task("Stack").env_id, variant="D0")
     env.reset(seed=0)
+    monkeypatch.setattr(generate, "NEAREST", 1)
     player = SegmentPlayer(env, source, seed=0)
-    player.choice = [0, 0, 0]  # the episode recorded from seed 0
     played = np.array(_played(player, env))[: -generate.HOLD_STEPS]
+    assert player.played == [0, 0, 0]  # the episode recorded from seed 0
     recorded = np.concatenate([c[0].actions for c in source.segments])
     env.close()
     assert played.shape == recorded.shape

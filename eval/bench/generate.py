@@ -72,7 +72,7 @@ def rate(task: str, variant: str, env_kwargs: dict, source_dir: Path, attempts: 
     spec = find_task(task)
     env = gym.make(spec.env_id, **spec.kwargs(variant), **env_kwargs)
     start = time.perf_counter()
-    kept = sum(run_generated(env, source, seed) for seed in range(FIRST_SEED, FIRST_SEED + attempts))
+    kept = sum(run_generated(env, source, seed)[0] for seed in range(FIRST_SEED, FIRST_SEED + attempts))
     env.close()
     return kept, (time.perf_counter() - start) / attempts
 

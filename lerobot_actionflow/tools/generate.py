@@ -13,21 +13,23 @@ How (Mandlekar et al., MimicGen, 2023):
    the hand has moved :data:`SETTLE_RADIUS` (10 cm) from where the gripper changed: the grasp's lift and the
    release's retreat stay with the object they were made at, as MimicGen's subtask-end offsets do. An
    episode whose gripper changes a different number of times (a regrasp) is left out, and the card says so.
-2. **Transform** for a new layout: at the start of subtask i, one source episode is drawn (per subtask, from
-   the generated episode's seed), and its segment's end-effector targets ``T`` move with the reference
-   object, from where it was when that segment started (``O_src``) to where it is now (``O_new``):
-   ``T' = O_new O_src^-1 T``. A carried object moves with the hand, so carrying cube A onto cube B follows
-   cube B wherever it is. Beyond MimicGen, a subtask that carries an object also corrects for how that
-   object sits in the hand now (``H_new``) against the source (``H_src``): ``T' = O_new O_src^-1 T H_src
-   H_new^-1``, so the carried object, not the hand, retraces the source's path (a bulb grasped 2 mm
-   higher still reaches the socket). Also beyond MimicGen, a symmetric object (``Subtask.symmetry``: a cube
-   looks the same every quarter turn) is taken at whichever of its equivalent poses ``O_new Z_k`` keeps the
-   segment's hand nearest where it is (:func:`least_turn`), as the experts grasp a cube by the faces nearest
-   the wrist. MimicGen's plain transform turns the wrist with every random yaw of the cube, anywhere in the
-   circle, which the experts never do (Stack Three D1 trained on such data: 0 % against 70 % from expert
-   data).
-3. **Link** the current target to the first transformed one by a straight, evenly timed motion (position along
-   a line, rotation along the geodesic, at the scripted experts' speeds), the gripper held as it was.
+2. **Transform** for a new layout: at the start of subtask i, one source episode is drawn (per subtask, by the
+   generated episode's seed, among the :data:`NEAREST` whose moved segment the hand reaches by the shortest
+   link, as MimicGen draws among nearest neighbours), and its segment's end-effector targets ``T`` move with
+   the reference object, from where it was when that segment started (``O_src``) to where it is now
+   (``O_new``): ``T' = O_new O_src^-1 T``. A carried object moves with the hand, so carrying cube A onto cube
+   B follows cube B wherever it is. Beyond MimicGen, a subtask that carries an object also corrects for how
+   that object sits in the hand now (``H_new``) against the source (``H_src``): ``T' = O_new O_src^-1 T H_src
+   H_new^-1``, so the carried object, not the hand, retraces the source's path (a bulb grasped 2 mm higher
+   still reaches the socket). Also beyond MimicGen, a symmetric object (``Subtask.symmetry``: a cube looks the
+   same every quarter turn) is taken at whichever of its equivalent poses ``O_new Z_k`` keeps the segment's
+   hand nearest where it is (:func:`least_turn`), as the experts grasp a cube by the faces nearest the wrist.
+   MimicGen's plain transform turns the wrist with every random yaw of the cube, anywhere in the circle, which
+   the experts never do (Stack Three D1 trained on such data: 0 % against 70 % from expert data).
+3. **Link** the current target to the first transformed one as near the subtask's object as the hand already
+   is (:func:`transit_end`: what comes before is the source's transit from elsewhere) by a straight, evenly
+   timed motion (position along a line, rotation along the geodesic, at the scripted experts' speeds), the
+   gripper held as it was.
 4. **Execute** in the env and keep only the successes.
 
 The output is an ordinary LeRobotDataset with the schema and observation settings of ``actionflow-record``
@@ -64,6 +66,13 @@ SETTLE_RADIUS = 0.1
 subtask starts once the target is this far (m) from where the change was commanded."""
 HOLD_STEPS = 10
 """Steps the last target is held after the plan, for the success check to see the scene settle."""
+NEAREST: int | None = 3
+"""Each subtask's segment is drawn (uniformly, by the episode's seed) among the NEAREST source segments whose
+link from the hand is shortest, MimicGen's nearest-neighbour selection measured by the motion it costs rather
+than the object's pose; None draws among all."""
+TRIM_TRANSIT = True
+"""Link straight to the first target of a moved segment as near its object as the hand is
+(:func:`transit_end`), skipping the source's transit; False replays the whole moved segment (MimicGen)."""
 LINK_SPEED = 0.02
 LINK_ROT_SPEED = 0.12
 """Speeds of the linking motion, metres and radians per control step (the scripted experts' defaults)."""
@@ -138,6 +147,18 @@ def least_turn(
     cost = (distance / LINK_SPEED + angle / LINK_ROT_SPEED).mean(axis=-1)
     k, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
     return moves[k], regrips[j]
+
+
+def transit_end(targets: list[np.ndarray], hand: np.ndarray, reference: np.ndarray) -> int:
+    """The first of a moved segment's targets that is no farther from the reference object's origin than
+    the hand is now, give or take one link step (0 when the first already is; the last when none is).
+    What comes before is the source's transit from wherever its previous subtask ended, which, moved with
+    this subtask's object, starts at a point that has nothing to do with where the hand is (carrying cube A
+    onto cube B, it starts where the source's cube A lay relative to its cube B): the link goes straight
+    here instead, without the detour."""
+    reach = float(np.linalg.norm(hand[:3, 3] - reference)) + LINK_SPEED
+    near = [i for i, m in enumerate(targets) if np.linalg.norm(m[:3, 3] - reference) <= reach]
+    return near[0] if near else len(targets) - 1
 
 
 # ---------------------------------------------------------------------------- sources
@@ -298,32 +319,27 @@ def _generatable():
     return [t for t in TASKS if t.subtasks]
 
 
-def segment_choice(seed: int, source: Source) -> list[int]:
-    """Which source episode (an index into ``source.segments[i]``) each subtask of the episode generated
-    from ``seed`` replays: drawn uniformly per subtask, a function of the seed alone."""
-    rng = np.random.default_rng(seed)
-    return [int(rng.integers(len(candidates))) for candidates in source.segments]
-
-
 # ---------------------------------------------------------------------------- generation
 class SegmentPlayer:
     """Plays one generated episode: each subtask's source segment moved with its object, linked to the last
-    target; then holds the last target for :data:`HOLD_STEPS` steps. ``act()`` returns None when done."""
+    target; then holds the last target for :data:`HOLD_STEPS` steps. ``act()`` returns None when done;
+    ``played`` lists the source episode of each segment played so far."""
 
     def __init__(self, env, source: Source, seed: int, noise: float = 0.0):
         self.env = env.unwrapped
         self.source = source
-        self.choice = segment_choice(seed, source)
         self.rng = np.random.default_rng([seed, 1])
         self.noise = noise
         self.target = _matrix(*self.env.tcp_pose())
-        self.grip = float(source.segments[0][self.choice[0]].actions[0, -1])  # as the source began (held?)
+        self.grip = float(source.segments[0][0].actions[0, -1])  # as the sources began (holding or not)
         self.subtask = 0
         self.queue: list[tuple[np.ndarray, float]] = []
         self.held = 0
+        self.played: list[int] = []
 
-    def _plan_next(self) -> None:
-        segment = self.source.segments[self.subtask][self.choice[self.subtask]]
+    def plan(self, segment: Segment) -> tuple[list[np.ndarray], int]:
+        """``segment``'s targets moved into the scene as it is now, and the index of the first one the link
+        goes to (:func:`transit_end`)."""
         objects = self.env.object_poses()
         if segment.reference not in objects:
             raise ValueError(
@@ -341,8 +357,21 @@ class SegmentPlayer:
         source = np.array([to_matrix(a[:9]) for a in segment.actions])
         move, regrip = least_turn(self.target, moves, source, regrips)
         targets = [move @ target @ regrip for target in source]
-        self.queue = [(m, self.grip) for m in link(self.target, targets[0])[:-1]]
-        self.queue += [(m, float(a[-1])) for m, a in zip(targets, segment.actions, strict=True)]
+        first = transit_end(targets, self.target, reference[:3, 3]) if TRIM_TRANSIT else 0
+        return targets, first
+
+    def _plan_next(self) -> None:
+        candidates = self.source.segments[self.subtask]
+        plans = [self.plan(segment) for segment in candidates]
+        # MimicGen's nearest-neighbour selection, by the link each candidate needs from where the hand is.
+        steps = [len(link(self.target, targets[first])) for targets, first in plans]
+        nearest = np.argsort(steps, kind="stable")[: NEAREST or len(candidates)]
+        pick = int(nearest[int(self.rng.integers(len(nearest)))])
+        (targets, first), segment = plans[pick], candidates[pick]
+        self.queue = [(m, self.grip) for m in link(self.target, targets[first])[:-1]]
+        pairs = zip(targets[first:], segment.actions[first:], strict=True)
+        self.queue += [(m, float(a[-1])) for m, a in pairs]
+        self.played.append(segment.episode)
         self.subtask += 1
 
     def act(self) -> np.ndarray | None:
@@ -366,20 +395,24 @@ class SegmentPlayer:
         return np.concatenate([to_pose9(target), [self.grip]]).astype(np.float32)
 
 
-def run_generated(env, source: Source, seed: int, noise: float = 0.0, on_step=None) -> bool:
-    """One generated episode from ``seed``: reset, play, return whether it succeeded. ``on_step(obs,
-    action)`` sees each observation and the action taken from it (the recorder's frames)."""
+def run_generated(
+    env, source: Source, seed: int, noise: float = 0.0, on_step=None
+) -> tuple[bool, list[int]]:
+    """One generated episode from ``seed``: reset, play; whether it succeeded and the source episode of each
+    segment played. ``on_step(obs, action)`` sees each observation and the action taken from it (the
+    recorder's frames)."""
     obs, info = env.reset(seed=seed)
     player = SegmentPlayer(env, source, seed, noise)
     while True:
         action = player.act()
         if action is None:
-            return bool(info.get("is_success", False))
+            break
         if on_step is not None:
             on_step(obs, action)
         obs, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
-            return bool(info.get("is_success", False))
+            break
+    return bool(info.get("is_success", False)), player.played
 
 
 _sources: dict[tuple[str, str], Source] = {}
@@ -399,16 +432,16 @@ def cached_source(root: str, task: str) -> Source:
     return _sources[key]
 
 
-def write_generation_file(root: Path, source: Source, seeds: list[int]) -> dict:
+def write_generation_file(
+    root: Path, source: Source, seeds: list[int], segments: dict[str, list[int]]
+) -> dict:
     """``meta/actionflow_generation.json``: the source, its usable and skipped episodes, and for each kept
-    episode (in dataset order) its seed and the source episode of each of its segments."""
-    def segments(seed: int) -> list[int]:
-        return [source.segments[i][c].episode for i, c in enumerate(segment_choice(seed, source))]
-
+    episode (in dataset order) its seed and the source episode of each of its segments (``segments``, by
+    seed, as the recording log keeps them)."""
     data = {
         "source": source.root, "task": source.task, "source_episodes": source.episodes,
         "skipped_source_episodes": {str(k): v for k, v in source.skipped.items()},
-        "episodes": [{"seed": seed, "segments": segments(seed)} for seed in seeds],
+        "episodes": [{"seed": seed, "segments": segments.get(str(seed))} for seed in seeds],
     }  # fmt: skip
     path = root / "meta" / GENERATION_FILE
     tmp = path.with_suffix(".tmp")

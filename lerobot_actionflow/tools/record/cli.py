@@ -5,12 +5,14 @@
     actionflow-record datasets/stack_three_d0_50.toml --push-to-hub you/stack_three_d0_50
 
     actionflow-record datasets/stack_d0_200.toml --workers 3                  # simulate in 3 processes
+    actionflow-record datasets/stack_d0_200.toml --executor ray --workers 64 --address HEAD:6379  # a cluster
     actionflow-record datasets/stack_d0_lerobot_100.toml                      # LeRobot layout, 2 cameras
     actionflow-record push ~/.cache/huggingface/lerobot/actionflow/stack_d0_200 --to you/stack_d0_200
     actionflow-record --task Stack --episodes 10 --policy outputs/train/checkpoints/last/pretrained_model
 
 Only successful expert episodes are kept; failures are counted and reported. Seeds are tried in order from
-``--seed``, so a dataset is reproducible from its command, with any number of --workers. Every kept episode is
+``--seed``, so a dataset is reproducible from its command, with any number of --workers, here or as Ray
+actors. Every kept episode is
 durable before the next one is simulated: it goes to a journal beside the dataset (meta/actionflow_journal/)
 and the dataset is finalized every 50 episodes (every tenth of it beyond 500) and when the recording stops.
 Ctrl-C, a crash or a kill keeps all of them (whatever a kill interrupts while it is written is undone), and

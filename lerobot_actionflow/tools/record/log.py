@@ -22,6 +22,8 @@ class RecordingLog:
     kept_seeds: list[int] = field(default_factory=list)
     failed_seeds: list[int] = field(default_factory=list)
     seconds: float = 0.0
+    segments: dict[str, list[int]] = field(default_factory=dict)
+    """A generation's kept episodes: seed (as text) -> the source episode of each segment."""
 
     @property
     def next_seed(self) -> int:

@@ -322,6 +322,8 @@ def record(
                 with deferred_interrupts():
                     journal.write(root, episode)
                     log.kept_seeds.append(episode.seed)
+                    if episode.segments is not None:
+                        log.segments[str(episode.seed)] = list(episode.segments)
                     log.seconds += time.time() - start
                     start = time.time()
                     log.save(root)  # the episode is durable from here on
@@ -341,7 +343,7 @@ def record(
                     from lerobot_actionflow.tools.generate import cached_source, write_generation_file
 
                     done = log.kept_seeds[: _total_episodes(root)]
-                    write_generation_file(root, cached_source(recipe.source, recipe.task), done)
+                    write_generation_file(root, cached_source(recipe.source, recipe.task), done, log.segments)
                 write_card(root)  # the folder describes itself, pushed or not
         if env is not None:
             env.close()

@@ -41,6 +41,8 @@ class Episode:
     """Dataset key -> ``[T, *shape]``: :func:`schema.dataset_frame`'s frames, stacked (empty on failure)."""
     task: str
     """The task description stored with every frame."""
+    segments: list[int] | None = None
+    """A generated episode's source episode per subtask segment (None: not generated)."""
 
     def frames(self) -> Iterator[dict]:
         """The ``LeRobotDataset.add_frame`` frames, one per step."""
@@ -72,6 +74,7 @@ def simulate(env, recipe: Recipe, seed: int) -> Episode:
 
     task = env.unwrapped.task_description
     frames: list[dict] = []
+    segments = None
 
     def keep(obs: dict, action: np.ndarray) -> None:
         frames.append(schema.dataset_frame(obs, action, task))
@@ -80,7 +83,7 @@ def simulate(env, recipe: Recipe, seed: int) -> Episode:
         from lerobot_actionflow.tools.generate import cached_source, run_generated
 
         source = cached_source(recipe.source, recipe.task)
-        success = run_generated(env, source, seed, recipe.noise, on_step=keep)
+        success, segments = run_generated(env, source, seed, recipe.noise, on_step=keep)
     elif recipe.policy is not None:  # a trained policy's rollout (actionflow-record --policy)
         from gym_actionflow.rollout import rollout
 
@@ -92,7 +95,7 @@ def simulate(env, recipe: Recipe, seed: int) -> Episode:
     if not success:
         return Episode(seed, False, {}, task)
     columns = {key: np.stack([frame[key] for frame in frames]) for key in frames[0] if key != "task"}
-    return Episode(seed, True, columns, task)
+    return Episode(seed, True, columns, task, segments if recipe.source is not None else None)
 
 
 _policies: dict[str, tuple] = {}
