@@ -77,17 +77,23 @@ def rate(task: str, variant: str, env_kwargs: dict, source_dir: Path, attempts: 
     return kept, (time.perf_counter() - start) / attempts
 
 
-def speed(source_dir: Path, work: Path, workers: int, episodes: int) -> tuple[float, str]:
-    """Generated episodes per minute of the real command (Stack D1), dataset writing included."""
-    root = work / f"speed_w{workers}"
+def speed(
+    source_dir: Path, work: Path, workers: int, episodes: int, executor: str = "local"
+) -> tuple[float, str]:
+    """Generated episodes per minute of the real command (Stack D1), dataset writing included; with
+    ``executor="ray"`` simulated by Ray actors (Ray's start-up included)."""
+    name = f"speed_{'ray' if executor == 'ray' else 'w'}{workers}"
+    root = work / name
     if root.exists():
         import shutil
 
         shutil.rmtree(root)
     cmd = [str(Path(sys.executable).parent / "actionflow-generate"), str(source_dir), "--task", "Stack",
            "--variant", "D1", "--episodes", str(episodes), "--seed", str(FIRST_SEED),
-           "--workers", str(workers), "--repo-id", f"local/speed_w{workers}", "--root", str(root),
+           "--workers", str(workers), "--repo-id", f"local/{name}", "--root", str(root),
            "--quiet"]  # fmt: skip
+    if executor != "local":
+        cmd += ["--executor", executor]
     print(f"$ {portable_command(cmd)}", flush=True)
     start = time.perf_counter()
     subprocess.run(cmd, check=True)
@@ -111,6 +117,9 @@ def main(argv: list[str] | None = None) -> None:
         "--parts", nargs="+", choices=("rates", "speed"), default=["rates", "speed"],
         help="the generation rates per task, the speed with 1 and 2 workers, or both (default)",
     )  # fmt: skip
+    parser.add_argument(
+        "--ray", action="store_true", help="the speed part also runs 2 Ray actors (--executor ray; needs Ray)"
+    )
     add_out_argument(parser)
     args = parser.parse_args(argv)
     given = dict(text.split("=", 1) for text in args.source)
@@ -143,9 +152,11 @@ def main(argv: list[str] | None = None) -> None:
         lines += ["", "| workers | generated episodes / min (Stack D1, dataset written) | command |",
                   "|---|---|---|"]  # fmt: skip
         stack = source_root(args.sources, "Stack")
-        for workers in (1, 2):
-            per_min, cmd = speed(stack, args.sources, workers, args.speed_episodes)
-            lines.append(f"| {workers} | {per_min:.0f} | `{cmd}` |")
+        runs = [(1, "local"), (2, "local")] + [(2, "ray")] * args.ray
+        for workers, executor in runs:
+            per_min, cmd = speed(stack, args.sources, workers, args.speed_episodes, executor)
+            label = f"{workers} Ray actors" if executor == "ray" else str(workers)
+            lines.append(f"| {label} | {per_min:.0f} | `{cmd}` |")
             print(lines[-1], flush=True)
     lines += ["", describe(), ""]
     name = "generate_speed_cpu.md" if args.parts == ["speed"] else "generate_cpu.md"
