@@ -323,3 +323,19 @@ def test_generation_through_ray_actors_is_the_local_generation(stack_source, tmp
         np.testing.assert_array_equal(np.stack(ray[key]), np.stack(local[key]), err_msg=key)
     with pytest.raises(SystemExit):  # an address is a Ray cluster's: it needs --executor ray
         generate.main([*base, "--root", str(tmp_path / "x"), "--address", "head:6379"])
+
+
+def test_demo_stats_measure_the_hand_path_and_the_wrist_turn(stack_source):
+    """eval.diagnostics.demo_stats on three expert episodes: the frame count and path length equal a direct
+    read of the actions, and the expert's top-down grasps stay within 45 degrees of home at the median."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from eval.diagnostics.demo_stats import stats
+
+    data = LeRobotDataset("local/stack_src3", root=stack_source).hf_dataset.with_format("numpy")[:]
+    actions, episode = np.stack(data["action"]), np.asarray(data["episode_index"])
+    paths = [np.linalg.norm(np.diff(actions[episode == e, :3], axis=0), axis=1).sum() for e in (0, 1, 2)]
+    got = stats(stack_source)
+    assert got["episodes"] == 3 and got["frames"] == pytest.approx(len(actions) / 3)
+    assert got["path_m"] == pytest.approx(np.mean(paths), rel=1e-5)
+    assert 0 <= got["yaw_p50"] <= 45 and got["yaw_p50"] <= got["yaw_p90"] <= got["yaw_p99"] <= 180
