@@ -11,13 +11,12 @@
     actionflow-record --task Stack --episodes 10 --policy outputs/train/checkpoints/last/pretrained_model
 
 Only successful expert episodes are kept; failures are counted and reported. Seeds are tried in order from
-``--seed``, so a dataset is reproducible from its command, with any number of --workers, here or as Ray
-actors. Every kept episode is
-durable before the next one is simulated: it goes to a journal beside the dataset (meta/actionflow_journal/)
-and the dataset is finalized every 50 episodes (every tenth of it beyond 500) and when the recording stops.
-Ctrl-C, a crash or a kill keeps all of them (whatever a kill interrupts while it is written is undone), and
-running the same command again resumes where the recording stopped, replaying the journal instead of
-simulating those episodes again.
+``--seed``, so a dataset is reproducible from its command, with any number of --workers, here or as Ray actors
+(--executor ray). Every kept episode is durable before the next one is simulated: it goes to a journal beside
+the dataset (meta/actionflow_journal/) and the dataset is finalized every 50 episodes (every tenth of it
+beyond 500) and when the recording stops. Ctrl-C, a crash or a kill keeps all of them (whatever a kill
+interrupts while it is written is undone), and running the same command again resumes where the recording
+stopped, replaying the journal instead of simulating those episodes again.
 
 Every flag and recipe field is checked before anything is written. The folder holds its dataset card
 (README.md) from the moment the recording stops; `push ROOT --to REPO_ID` uploads the folder as it is, card

@@ -95,7 +95,7 @@ def simulate(env, recipe: Recipe, seed: int) -> Episode:
     if not success:
         return Episode(seed, False, {}, task)
     columns = {key: np.stack([frame[key] for frame in frames]) for key in frames[0] if key != "task"}
-    return Episode(seed, True, columns, task, segments if recipe.source is not None else None)
+    return Episode(seed, True, columns, task, segments)
 
 
 _policies: dict[str, tuple] = {}
