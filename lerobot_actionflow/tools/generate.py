@@ -101,14 +101,23 @@ def _matrix(pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
     return out
 
 
+def link_steps(start: np.ndarray, end: np.ndarray) -> int:
+    """How many steps :func:`link` takes from ``start`` to ``end``: as many as the slower of the straight line
+    and the rotation's geodesic needs at the link speeds (at least one)."""
+    from gym_actionflow.geometry import rotation_log
+
+    turn = float(np.linalg.norm(rotation_log(start[:3, :3].T @ end[:3, :3])))
+    distance = float(np.linalg.norm(end[:3, 3] - start[:3, 3]))
+    return max(1, math.ceil(max(distance / LINK_SPEED, turn / LINK_ROT_SPEED)))
+
+
 def link(start: np.ndarray, end: np.ndarray) -> list[np.ndarray]:
     """4x4 targets from ``start`` (excluded) to ``end`` (included): a straight line and the rotation's
-    geodesic, evenly timed, as many steps as the slower of the two needs at the link speeds."""
+    geodesic, evenly timed, :func:`link_steps` of them."""
     from gym_actionflow.geometry import axis_angle_matrix, rotation_log
 
     delta = rotation_log(start[:3, :3].T @ end[:3, :3])
-    distance = float(np.linalg.norm(end[:3, 3] - start[:3, 3]))
-    steps = max(1, math.ceil(max(distance / LINK_SPEED, float(np.linalg.norm(delta)) / LINK_ROT_SPEED)))
+    steps = link_steps(start, end)
     out = []
     for k in range(1, steps + 1):
         s = k / steps
@@ -364,7 +373,7 @@ class SegmentPlayer:
         candidates = self.source.segments[self.subtask]
         plans = [self.plan(segment) for segment in candidates]
         # MimicGen's nearest-neighbour selection, by the link each candidate needs from where the hand is.
-        steps = [len(link(self.target, targets[first])) for targets, first in plans]
+        steps = [link_steps(self.target, targets[first]) for targets, first in plans]
         nearest = np.argsort(steps, kind="stable")[: NEAREST or len(candidates)]
         pick = int(nearest[int(self.rng.integers(len(nearest)))])
         (targets, first), segment = plans[pick], candidates[pick]
