@@ -29,6 +29,8 @@ ROWS: tuple[tuple[str, str, dict], ...] = (
     ("Threading", "D0", {}), ("Threading", "D1", {}), ("Threading", "D2", {}),
     ("MugHanging", "train", {"mug_yaw": "slight"}), ("MugHanging", "test", {"mug_yaw": "slight"}),
     ("Lightbulb", "D0", {}), ("Lightbulb", "D0", {"socket_fit": "paper"}),
+    ("RobosuiteLift", "D0", {}), ("RobosuiteCan", "D0", {}), ("RobosuiteSquare", "D0", {}),
+    ("RobosuiteToolHang", "D0", {}),
 )  # fmt: skip
 """(task, variant, env keywords) of each row; sources are recorded on the task's first variant."""
 SOURCE_ENV = {"MugHanging": {"mug_yaw": "slight"}}
