@@ -364,3 +364,21 @@ def test_demo_stats_measure_the_hand_path_and_the_wrist_turn(stack_source):
     assert got["episodes"] == 3 and got["frames"] == pytest.approx(len(actions) / 3)
     assert got["path_m"] == pytest.approx(np.mean(paths), rel=1e-5)
     assert 0 <= got["yaw_p50"] <= 45 and got["yaw_p50"] <= got["yaw_p90"] <= got["yaw_p99"] <= 180
+
+
+def test_loader_order_counts_distinct_episodes_per_batch_and_per_ten(stack_source):
+    """eval.diagnostics.loader_order: the counts on orders worked out by hand, and the shuffled order of a
+    real dataset draws every frame once per pass."""
+    from eval.diagnostics.loader_order import mixing, shuffled_order
+
+    in_order = np.repeat(np.arange(40), 8)  # 40 episodes of 8 frames read in file order: 4 per batch of 32
+    assert mixing(in_order, 32) == (4.0, 40.0)
+    assert mixing(np.tile(np.arange(32), 10), 32) == (32.0, 32.0)
+    with pytest.raises(ValueError, match="at least one batch"):
+        mixing(np.arange(5), 32)
+    import pyarrow.parquet as pq
+
+    frames = sum(pq.read_metadata(f).num_rows for f in (stack_source / "data").rglob("*.parquet"))
+    order = shuffled_order(stack_source, frames)
+    assert np.array_equal(np.bincount(order), np.bincount(np.sort(order)))
+    assert len(order) == frames and sorted(set(order.tolist())) == [0, 1, 2]
