@@ -22,7 +22,7 @@ MODULES = [
     "eval.bench.train", "eval.bench.delay", "eval.diagnostics.mug_trace", "eval.diagnostics.mug_layouts",
     "eval.diagnostics.open_loop", "eval.diagnostics.lightbulb_fit", "eval.diagnostics.camera_view",
     "eval.bench.render", "eval.bench.camera_latency", "eval.bench.executor", "eval.paper.executor",
-    "eval.bench.generate",
+    "eval.bench.generate", "eval.diagnostics.demo_stats", "eval.diagnostics.loader_order",
 ]  # fmt: skip
 MACHINE_PATH = re.compile(r"(/work/|/home/|/root/|/tmp/)")
 
