@@ -121,7 +121,8 @@ def test_every_dataset_recipe_carries_its_tasks_training(tmp_path, capsys):
         assert dataset.recipe != task_recipe(dataset.record.task), path.name
         for key, value in tables.get("train", {}).items():
             assert getattr(dataset.recipe.train, key) == value, (path.name, key)
-    # The camera recipes train streamed (eval/results/cameras.md); every other one is its task's.
+    # The two Lightbulb camera recipes train for their own steps (the socket-and-camera one streamed;
+    # eval/results/cameras.md); every other one is its task's.
     assert overriding == ["lightbulb_rgb_paper_fixed_100.toml", "lightbulb_rgb_socket_paper_fixed_100.toml"]
     own = tmp_path / "mug_short.toml"
     own.write_text(
