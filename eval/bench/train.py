@@ -225,10 +225,10 @@ def shuffle_quality(args: argparse.Namespace, batches: int) -> list[str]:
     import logging
 
     import numpy as np
-    import torch
     from lerobot.datasets import EpisodeAwareSampler
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
-    from lerobot.datasets.streaming_dataset import StreamingLeRobotDataset
+
+    from eval.diagnostics.loader_order import streaming_order
 
     logging.disable(logging.WARNING)
     meta = LeRobotDatasetMetadata(args.repo_id, root=args.dataset)
@@ -240,14 +240,9 @@ def shuffle_quality(args: argparse.Namespace, batches: int) -> list[str]:
     order = np.fromiter(sampler, dtype=np.int64)[: batches * args.batch_size]
     sources = {"map-style (EpisodeAwareSampler)": episode_of[order].reshape(batches, args.batch_size)}
     for workers in (1, 2):
-        ds = StreamingLeRobotDataset(args.repo_id, root=args.dataset, max_num_shards=workers, seed=42)
-        loader = torch.utils.data.DataLoader(ds, batch_size=args.batch_size, num_workers=workers)
-        eps = []
-        for batch in loader:
-            eps.append(batch["episode_index"].numpy())
-            if len(eps) == batches:
-                break
-        sources[f"streaming, {workers} worker{'s' * (workers > 1)}"] = np.stack(eps)
+        frames = batches * args.batch_size
+        order = streaming_order(args.dataset, args.repo_id, workers, frames, args.batch_size, seed=42)
+        sources[f"streaming, {workers} worker{'s' * (workers > 1)}"] = order.reshape(batches, args.batch_size)
 
     lines = [
         f"Episode mix of the first {batches} batches of {args.batch_size} ({batches * args.batch_size} of "

@@ -47,13 +47,17 @@ def shuffled_order(root: Path, frames: int, seed: int = 0) -> np.ndarray:
     return order[:frames]
 
 
-def streaming_order(root: Path, repo_id: str, workers: int, frames: int, batch_size: int) -> np.ndarray:
+def streaming_order(
+    root: Path, repo_id: str, workers: int, frames: int, batch_size: int, seed: int | None = None
+) -> np.ndarray:
     """``episode_index`` of the first ``frames`` frames LeRobot's streaming loader yields with ``workers``
-    DataLoader workers (it shards the data files into ``workers`` shards, as ``lerobot-train`` does)."""
+    DataLoader workers (it shards the data files into ``workers`` shards, as ``lerobot-train`` does);
+    ``seed`` its shuffle buffer's (None: LeRobot's default)."""
     import torch
     from lerobot.datasets.streaming_dataset import StreamingLeRobotDataset
 
-    dataset = StreamingLeRobotDataset(repo_id, root=root, max_num_shards=workers, return_uint8=True)
+    seeded = {} if seed is None else {"seed": seed}
+    dataset = StreamingLeRobotDataset(repo_id, root=root, max_num_shards=workers, return_uint8=True, **seeded)
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, num_workers=workers)
     seen: list[np.ndarray] = []
     for batch in loader:
