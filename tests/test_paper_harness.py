@@ -381,6 +381,25 @@ def test_variants_pick_groups_by_their_training_variant():
         build("sample-efficiency", cpu, ["Threading"], variants=["D1"])
 
 
+def test_seeds_and_demos_pick_the_trainings_of_a_headline_table():
+    """``--demos 50 --seeds 1 2 3`` trains each 50-demonstration dataset of the plan three times, one
+    training per seed and nothing else; the profile's own seed keeps its cell key, so a seed-1 cell of the
+    headline table is the published cell's twin. Repeated seeds and sizes no group has are refused."""
+    cpu = PROFILES["cpu"]
+    default = build("sample-efficiency", cpu, ["Coffee"], ["A.1"], variants=["D0"])
+    cells = build("sample-efficiency", cpu, ["Coffee"], ["A.1"], variants=["D0"], seeds=[1, 2, 3], demos=[50])
+    assert {c.dataset.episodes for c in default} == {20, 50, 200}
+    assert {c.dataset.episodes for c in cells} == {50}
+    assert sorted(c.training.seed for c in cells) == [1, 2, 3]
+    assert len({c.key for c in cells}) == 3
+    published = {c.key for c in default if c.dataset.episodes == 50}
+    assert published == {c.key for c in cells if c.training.seed == 1}
+    with pytest.raises(ValueError, match=r"--demos \[30\]: no group .* its sizes are \[20, 50, 200\]"):
+        build("sample-efficiency", cpu, ["Coffee"], variants=["D0"], demos=[30])
+    with pytest.raises(ValueError, match=r"--seeds \[1, 1\]: expected distinct"):
+        build("sample-efficiency", cpu, ["Coffee"], seeds=[1, 1])
+
+
 # ---------------------------------------------------------------------------- the Ray executor
 def _ray_env(monkeypatch, root: Path) -> None:
     monkeypatch.chdir(root)

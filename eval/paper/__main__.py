@@ -2,6 +2,7 @@
 
     python -m eval.paper sample-efficiency [--profile cpu|gpu|smoke] [--tasks Coffee] [--models A.1 DP]
                                            [--variants D2]              # only the groups trained on D2
+                                           [--demos 50] [--seeds 1 2 3] # one dataset size, 3 trainings
     python -m eval.paper inference-steps   [--profile ...] [--tasks Threading]
     python -m eval.paper generalisation    [--profile ...] [--tasks MugHanging Lightbulb]
     python -m eval.paper report            [--profile ...]      # rebuild tables and plots from the JSON
@@ -77,7 +78,8 @@ def describe(cells: list[Cell]) -> str:
 
 def run_experiment(experiment: str, args: argparse.Namespace, harness_command: str) -> list[dict]:
     profile = PROFILES[args.profile]
-    cells = build(experiment, profile, args.tasks, args.models, args.steps, args.variants, args.layouts)
+    cells = build(experiment, profile, args.tasks, args.models, args.steps, args.variants, args.layouts,
+                  args.seeds, args.demos)
     check_plan(cells)
     resolve_executor(args.executor, args.address, args.lanes)
     print(describe(cells), flush=True)
@@ -121,6 +123,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--models", nargs="+", help=f"only these models, of {[*MODELS, 'replay']}")
     parser.add_argument("--variants", nargs="+", help="only the groups trained on these variants (e.g. D2)")
     parser.add_argument("--steps", type=int, help="training steps instead of the profile's")
+    parser.add_argument(
+        "--seeds", type=int, nargs="+",
+        help="training seeds instead of the profile's (e.g. 1 2 3: each training run once per seed)",
+    )  # fmt: skip
+    parser.add_argument("--demos", type=int, nargs="+", help="only the datasets of this many demonstrations")
     parser.add_argument("--dry-run", action="store_true", help="print the plan and run nothing")
     parser.add_argument(
         "--layouts", choices=("heldout", "dev"), default="heldout",

@@ -144,10 +144,16 @@ def group_steps(profile: Profile, experiment: str, group: Group) -> int:
     return group.steps or profile.steps[experiment]
 
 
-def _trainings(profile: Profile, experiment: str, group: Group, models: set[str] | None, steps: int | None):
-    """(dataset, training) pairs of a group, for the models asked for."""
+def _trainings(
+    profile: Profile, experiment: str, group: Group, models: set[str] | None, steps: int | None,
+    seeds: tuple[int, ...] | None = None, demos_wanted: set[int] | None = None,
+):
+    """(dataset, training) pairs of a group, for the models, training seeds (default: the profile's) and
+    dataset sizes (default: the group's) asked for."""
     base = steps or group_steps(profile, experiment, group)
     for demos in group.demos:
+        if demos_wanted is not None and demos not in demos_wanted:
+            continue
         dataset = Dataset(group.task, group.variant, demos, env_kwargs=group.env_kwargs)
         for name in group.models:
             if models is not None and name not in models:
@@ -157,7 +163,7 @@ def _trainings(profile: Profile, experiment: str, group: Group, models: set[str]
             flags = model.flags + profile.policy_flags.get(model.policy_type, ())
             # The task recipe's ActionFlow settings, which train_command passes (not to diffusion).
             recipe = tuple(task_recipe(group.task).train.policy_flags()) if model.flow else ()
-            for seed in profile.seeds:
+            for seed in seeds or profile.seeds:
                 yield dataset, Training(dataset, name, n, profile.batch_size, seed, profile.device, flags,
                                         profile.checkpoints, recipe)  # fmt: skip
 
@@ -206,9 +212,12 @@ def build(
     steps: int | None = None,
     variants: list[str] | None = None,
     layouts: str = "heldout",
+    seeds: list[int] | None = None,
+    demos: list[int] | None = None,
 ) -> list[Cell]:
-    """Every cell of ``experiment`` under ``profile``, restricted to ``tasks``, ``models`` and training
-    ``variants`` (``D0``, ``D2``...) if given, evaluated on ``layouts`` (``heldout`` or ``dev``)."""
+    """Every cell of ``experiment`` under ``profile``, restricted to ``tasks``, ``models``, training
+    ``variants`` (``D0``, ``D2``...) and dataset sizes ``demos`` if given, trained with each of ``seeds``
+    (default: the profile's) and evaluated on ``layouts`` (``heldout`` or ``dev``)."""
     if layouts not in LAYOUTS:
         raise ValueError(f"layouts {layouts!r}; expected one of {tuple(LAYOUTS)}")
     if experiment not in EXPERIMENTS:
@@ -221,12 +230,21 @@ def build(
     groups = _only(groups, "task", tasks, where)
     groups = _only(groups, "variant", variants, where + (f" for {', '.join(tasks)}" if tasks else ""))
     wanted = set(models) if models else None
+    if seeds is not None and (not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0):
+        raise ValueError(f"--seeds {seeds}: expected distinct training seeds >= 0")
+    if demos:
+        sizes = {n for g in groups for n in g.demos}
+        if set(demos) - sizes:
+            raise ValueError(f"--demos {sorted(set(demos) - sizes)}: no group of {where} trains on that many "
+                             f"demonstrations; its sizes are {sorted(sizes)}")
+    seeds_ = tuple(seeds) if seeds else None
     common = dict(experiment=experiment, profile=profile.name, episodes=profile.eval_episodes,
                   batch_size=profile.eval_batch_size, layouts=layouts)  # fmt: skip
     cells: list[Cell] = []
     for group in groups:
         title = group.title or f"{group.task} {group.variant}"
-        for dataset, training in _trainings(profile, experiment, group, wanted, steps):
+        sizes = set(demos) if demos else None
+        for dataset, training in _trainings(profile, experiment, group, wanted, steps, seeds_, sizes):
             note = profile.notes.get(training.policy_type, "")
             for variant in group.eval_variants or (group.variant,):
                 base = dict(
