@@ -125,6 +125,26 @@ def test_the_wall_time_table_counts_a_shared_training_once_and_every_evaluation(
     assert timing_section([{k: v for k, v in c.items() if k != "seconds"} for c in cells]) == []
 
 
+def test_several_training_seeds_give_the_mean_and_range_in_the_table_and_error_bars_in_the_plot(tmp_path):
+    """Three trainings of one cell show as their mean with the lowest and highest seed; one training as its
+    rate alone; the plot draws the range as an error bar."""
+    from eval.paper.report import aggregate, markdown_table, plot
+
+    def cell(model: str, success: float) -> dict:
+        return dict(group="Coffee D0", model=model, experiment="sample-efficiency", demos=50,
+                    success=success, n_episodes=50)  # fmt: skip
+
+    table = aggregate([cell("A.1", 0.62), cell("A.1", 0.9), cell("A.1", 0.74), cell("DP", 0.5)])
+    rate = table["Coffee D0"]["A.1"]["50 demos"]
+    assert rate.mean == pytest.approx(2.26 / 3) and (rate.low, rate.high, rate.seeds) == (0.62, 0.9, 3)
+    assert rate.error_bar() == pytest.approx((100 * (rate.mean - 0.62), 100 * (0.9 - rate.mean)))
+    text = markdown_table(table["Coffee D0"])
+    assert "| A.1 | 75% of 50 (62-90%, 3 seeds) |" in text
+    assert "| DP | 50% of 50 |" in text
+    plot("sample-efficiency", table, tmp_path / "p.png", "caption")
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
 def test_superseded_cells_are_listed_apart_and_never_pooled_with_todays(smoke, tmp_path):
     """A cell moved to ``superseded/`` (its settings left the profile) leaves the tables and the plot's
     seeds, and is listed in its own section with its steps, loader and success."""

@@ -4,7 +4,8 @@
 Per experiment and profile: ``<profile>_<experiment>.md`` (one table per task group, the profile's settings,
 the harness commands that made the cells and the one that made the file) and ``<profile>_<experiment>.png``:
 success vs demonstrations per task, success vs inference steps, or success on the training vs the test
-layout. Numbers are final-checkpoint success; several training seeds give their mean and spread; a profile
+layout. Numbers are final-checkpoint success; several training seeds give their mean and range (min-max),
+plotted as error bars; a profile
 that evaluates checkpoints during training adds a second table, the best of those evaluations, labelled.
 The head of each file names the commits its cells were run at (their recorded provenance).
 
@@ -21,6 +22,7 @@ import re
 import statistics
 from collections import defaultdict
 from pathlib import Path
+from typing import NamedTuple
 
 from eval.paper.profiles import DIFFUSION_NORMALISATION
 from lerobot_actionflow.recipes import LAYOUTS
@@ -226,8 +228,29 @@ def column(cell: dict, experiment: str) -> str:
     return f"{cell['eval_variant']} layout" if cell["task"] == "MugHanging" else f"{cell['eval_variant']}"
 
 
+class Rate(NamedTuple):
+    """One table entry: success over the training seeds of a cell."""
+
+    mean: float
+    low: float
+    high: float
+    seeds: int
+    episodes: int
+
+    def text(self) -> str:
+        """``84% of 50``, or with several seeds ``84% of 50 (80-88%, 3 seeds)``: the mean and the range."""
+        out = f"{self.mean:.0%} of {self.episodes}"
+        if self.seeds > 1:
+            out += f" ({100 * self.low:.0f}-{100 * self.high:.0f}%, {self.seeds} seeds)"
+        return out
+
+    def error_bar(self) -> tuple[float, float]:
+        """Percentage points below and above the mean to the lowest and highest seed."""
+        return 100 * (self.mean - self.low), 100 * (self.high - self.mean)
+
+
 def aggregate(cells: list[dict], value: str = "success") -> dict:
-    """``{group: {series: {column: (mean, spread, seeds, episodes)}}}`` over training seeds."""
+    """``{group: {series: {column: Rate}}}`` over training seeds."""
     pooled: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for c in cells:
         v = c["success"] if value == "success" else c.get("best_of_periodic", {}).get("success")
@@ -240,8 +263,9 @@ def aggregate(cells: list[dict], value: str = "success") -> dict:
             out[group][name] = {}
             for col, vals in cols.items():
                 rates = [v for v, _ in vals]
-                spread = statistics.pstdev(rates) if len(rates) > 1 else 0.0
-                out[group][name][col] = (statistics.fmean(rates), spread, len(rates), vals[0][1])
+                out[group][name][col] = Rate(
+                    statistics.fmean(rates), min(rates), max(rates), len(rates), vals[0][1]
+                )
     return out
 
 
@@ -260,9 +284,7 @@ def markdown_table(rows: dict) -> str:
             if c not in r:
                 cells.append("")
                 continue
-            mean, spread, seeds, n = r[c]
-            text = f"{mean:.0%} of {n}"
-            cells.append(text + (f" (+-{spread:.0%}, {seeds} seeds)" if seeds > 1 else ""))
+            cells.append(r[c].text())
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -290,16 +312,18 @@ def plot(experiment: str, table: dict, path: Path, caption: str) -> None:
             width = 0.8 / max(len(cols), 1)
             for j, col in enumerate(cols):
                 xs = [i + j * width for i, r in enumerate(rows.values()) if col in r]
-                ys = [100 * r[col][0] for r in rows.values() if col in r]
-                ax.bar(xs, ys, width, label=col, color=bar_colour[col])
+                ys = [100 * r[col].mean for r in rows.values() if col in r]
+                bars = list(zip(*(r[col].error_bar() for r in rows.values() if col in r), strict=True))
+                ax.bar(xs, ys, width, yerr=bars, capsize=3, label=col, color=bar_colour[col])
             ax.set_xticks([i + width * (len(cols) - 1) / 2 for i in range(len(rows))])
             ax.set_xticklabels([n.split(" (")[0] for n in rows], rotation=20, fontsize=8)
         else:
             for name, r in rows.items():
                 cols = sorted(r, key=_sort_key)
                 xs = [_sort_key(c)[1] for c in cols]
-                ax.errorbar(xs, [100 * r[c][0] for c in cols], yerr=[100 * r[c][1] for c in cols], marker="o",
-                            capsize=3, label=name, color=colour[name])  # fmt: skip
+                bars = list(zip(*(r[c].error_bar() for c in cols), strict=True))
+                ax.errorbar(xs, [100 * r[c].mean for c in cols], yerr=bars, marker="o", capsize=3, label=name,
+                            color=colour[name])  # fmt: skip
             ax.set_xscale("log")
             ticks = sorted({_sort_key(c)[1] for r in rows.values() for c in r})
             ax.set_xticks(ticks, [str(t) for t in ticks])
