@@ -232,18 +232,16 @@ def build(
     wanted = set(models) if models else None
     if seeds is not None and (not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0):
         raise ValueError(f"--seeds {seeds}: expected distinct training seeds >= 0")
-    if demos:
-        sizes = {n for g in groups for n in g.demos}
-        if set(demos) - sizes:
-            raise ValueError(f"--demos {sorted(set(demos) - sizes)}: no group of {where} trains on that many "
-                             f"demonstrations; its sizes are {sorted(sizes)}")
-    seeds_ = tuple(seeds) if seeds else None
+    known = {n for g in groups for n in g.demos}
+    if demos and set(demos) - known:
+        raise ValueError(f"--demos {sorted(set(demos) - known)}: no group of {where} trains on that many "
+                         f"demonstrations; its sizes are {sorted(known)}")  # fmt: skip
+    seeds_, sizes = (tuple(seeds) if seeds else None), (set(demos) if demos else None)
     common = dict(experiment=experiment, profile=profile.name, episodes=profile.eval_episodes,
                   batch_size=profile.eval_batch_size, layouts=layouts)  # fmt: skip
     cells: list[Cell] = []
     for group in groups:
         title = group.title or f"{group.task} {group.variant}"
-        sizes = set(demos) if demos else None
         for dataset, training in _trainings(profile, experiment, group, wanted, steps, seeds_, sizes):
             note = profile.notes.get(training.policy_type, "")
             for variant in group.eval_variants or (group.variant,):
